@@ -1,0 +1,268 @@
+"""Linear calibration from collinearity and coplanarity (paper §V-A/B) and stage-two pruning (§V-C-2).
+
+Per motion i, with Gamma(Q_i, J_i) = (a_b, d_b) from the robot and (A^c, rho) from the camera:
+
+* collinearity: [A^c]x R a_b = 0, i.e. [A^c]x (a_b^T kron I3) vec(R) = 0 (three rows, rank two);
+* coplanarity: rho . (R d_b + t) = 0, i.e. (d_b^T kron rho^T) vec(R) + rho^T t = 0 (one row).
+
+Stacked: H r + K t = 0. t is eliminated with t = -(K^T K)^-1 K^T H r, leaving S r = 0 with
+S = (I - K (K^T K)^-1 K^T) H; r is S's least right singular vector scaled to ||r|| = sqrt(3) (the
+norm of any rotation), R its nearest rotation (SVD, det = +1), and t is recovered from R.
+Coplanarity rows are metres; they are divided by the distance of the joint from the camera (taken
+from a first solve) so that both kinds of row are angles.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from solver.errors import InsufficientMotionsError, UnobservablePoseError
+from solver.frames import project_to_so3, skew, transform_from_rt
+
+FloatArray = NDArray[np.float64]
+
+#: Fewest motions for a pose: three planes fix t, and two non-parallel axes fix R.
+MIN_MOTIONS = 3
+
+#: Fewest motions for the paper's relaxed linear system: it has 3N - 3 independent equations
+#: for the 8 degrees of freedom of r up to scale, so N >= 4; with three motions R comes from the
+#: axis pairs alone (``solve_minimal``).
+MIN_MOTIONS_RELAXED = 4
+
+#: Smallest singular value of the pose Jacobian, relative to the largest, for a pose to count as
+#: observable. Motions of joints whose axes all meet in one point leave the depth of that point
+#: free, which shows as a ratio of ~1e-16 noise-free and well below this value with noise.
+MIN_OBSERVABILITY = 1e-3
+
+
+@dataclass(frozen=True)
+class AxisCorrespondence:
+    """One motion's axis seen by the robot and by the camera.
+
+    Attributes:
+        axis_base: (3,) float64: unit joint axis a_b in the base frame.
+        point_base: (3,) float64, m: a point d_b on the joint axis in the base frame.
+        axis_cam: (3,) float64: unit axis A^c in the camera frame.
+        plane_normal: (3,) float64: unit rho of the plane through the camera centre and the axis.
+    """
+
+    axis_base: FloatArray
+    point_base: FloatArray
+    axis_cam: FloatArray
+    plane_normal: FloatArray
+
+
+def _rows(c: AxisCorrespondence, depth: float) -> tuple[FloatArray, FloatArray]:
+    """Rows of H (4, 9) and K (4, 3) for one motion; coplanarity row divided by ``depth`` (m)."""
+    H = np.zeros((4, 9))
+    K = np.zeros((4, 3))
+    H[:3] = skew(c.axis_cam) @ np.kron(c.axis_base[None, :], np.eye(3))
+    H[3] = np.kron(c.point_base, c.plane_normal) / depth
+    K[3] = c.plane_normal / depth
+    return H, K
+
+
+def _translation(correspondences: Sequence[AxisCorrespondence], R: FloatArray,
+                 depths: FloatArray) -> FloatArray:
+    K = np.array([c.plane_normal / d for c, d in zip(correspondences, depths, strict=True)])
+    b = -np.array([c.plane_normal @ (R @ c.point_base) / d
+                   for c, d in zip(correspondences, depths, strict=True)])
+    sv = np.linalg.svd(K, compute_uv=False)
+    if sv[-1] < 1e-6 * sv[0]:
+        raise UnobservablePoseError(
+            "the motions' reference planes do not span 3-D space, so the translation is not fixed: "
+            "add motions of other joints or from other start configurations"
+        )
+    return np.linalg.lstsq(K, b, rcond=None)[0]
+
+
+def solve_minimal(correspondences: Sequence[AxisCorrespondence]) -> FloatArray:
+    """T_camera_base (4, 4) from three or more motions: R by Procrustes on the axis pairs
+    (A^c = R a_b, solved by SVD with det = +1), then t by least squares on the coplanarity rows.
+
+    Raises:
+        InsufficientMotionsError: fewer than three motions.
+        UnobservablePoseError: the axes are all parallel or the planes do not span R^3.
+    """
+    n = len(correspondences)
+    if n < MIN_MOTIONS:
+        raise InsufficientMotionsError(f"{n} motion(s) given; a pose needs at least {MIN_MOTIONS}")
+    B = sum(np.outer(c.axis_cam, c.axis_base) for c in correspondences)
+    sv = np.linalg.svd(B, compute_uv=False)
+    if sv[1] < 1e-6 * sv[0]:
+        raise UnobservablePoseError(
+            "the rotation is not fixed by these motions (their axes are parallel): add motions of "
+            "joints with other axis directions"
+        )
+    R = project_to_so3(B)
+    return transform_from_rt(R, _translation(correspondences, R, np.ones(n)))
+
+
+def solve_linear(correspondences: Sequence[AxisCorrespondence],
+                 depths: FloatArray | None = None) -> FloatArray:
+    """T_camera_base (4, 4) by the paper's linear method (four or more motions; three go to
+    ``solve_minimal``).
+
+    Args:
+        correspondences: the motions' axis correspondences.
+        depths: (N,) float64, m: distances used to scale the coplanarity rows; when None, a first
+            solve with unit depths provides them.
+
+    Raises:
+        InsufficientMotionsError: fewer than three motions.
+        UnobservablePoseError: the plane normals do not span R^3, or the rotation is not fixed.
+    """
+    n = len(correspondences)
+    if n < MIN_MOTIONS_RELAXED:
+        return solve_minimal(correspondences)
+    unit_depths = depths is None
+    depths = np.ones(n) if depths is None else np.asarray(depths, dtype=np.float64)
+    blocks = [_rows(c, d) for c, d in zip(correspondences, depths, strict=True)]
+    H = np.concatenate([b[0] for b in blocks])
+    K = np.concatenate([b[1] for b in blocks])
+    sv_K = np.linalg.svd(K, compute_uv=False)
+    if sv_K[-1] < 1e-6 * sv_K[0]:
+        raise UnobservablePoseError(
+            "the motions' reference planes do not span 3-D space, so the translation is not fixed: "
+            "add motions of other joints or from other start configurations"
+        )
+    K_pinv = np.linalg.pinv(K)
+    S = H - K @ (K_pinv @ H)
+    _, sv, Vt = np.linalg.svd(S)
+    if sv[-2] < 1e-9 * sv[0]:
+        raise UnobservablePoseError(
+            "the rotation is not fixed by these motions (their axes are parallel): add motions of "
+            "joints with other axis directions"
+        )
+    r = Vt[-1] * np.sqrt(3.0)
+    R_raw = r.reshape(3, 3, order="F")
+    if np.linalg.det(R_raw) < 0:
+        R_raw = -R_raw
+    R = project_to_so3(R_raw)
+    t = -K_pinv @ H @ R.reshape(-1, order="F")
+    T = transform_from_rt(R, t)
+    if unit_depths:
+        cam_points = np.array([R @ c.point_base + t for c in correspondences])
+        new_depths = np.maximum(np.linalg.norm(cam_points, axis=1), 0.1)
+        return solve_linear(correspondences, new_depths)
+    return T
+
+
+def consistency_errors(c: AxisCorrespondence, T_camera_base: FloatArray) -> tuple[float, float]:
+    """The paper's eps_a (rad, Eq. 23) and eps_d (m, Eq. 24) of one motion against a pose."""
+    R, t = T_camera_base[:3, :3], T_camera_base[:3, 3]
+    eps_a = float(np.arccos(np.clip(c.axis_cam @ (R @ c.axis_base), -1.0, 1.0)))
+    eps_d = float(abs(c.plane_normal @ (R @ c.point_base + t)))
+    return eps_a, eps_d
+
+
+def pose_observability(correspondences: Sequence[AxisCorrespondence],
+                       T_camera_base: FloatArray) -> tuple[float, FloatArray]:
+    """How well the motions fix the pose near T_camera_base.
+
+    Builds the Jacobian of the constraints (collinearity and coplanarity, the latter with the
+    plane predicted from the pose so that the answer is the geometry's, not the noise's) with
+    respect to the perturbation (omega, tau), tau in units of the mean joint depth.
+
+    Returns:
+        The ratio of the smallest to the largest singular value, and the weakest direction (6,).
+    """
+    R, t = T_camera_base[:3, :3], T_camera_base[:3, 3]
+    rows = []
+    depth = float(np.mean([np.linalg.norm(R @ c.point_base + t) for c in correspondences]))
+    for c in correspondences:
+        a_c = R @ c.axis_base
+        p_c = R @ c.point_base + t
+        rho = np.cross(p_c, a_c)
+        rho /= max(np.linalg.norm(rho), 1e-300)
+        J = np.zeros((4, 6))
+        J[:3, :3] = -skew(a_c) @ skew(a_c)  # d(a_c x Exp(w) a_c)/dw
+        J[3, :3] = -rho @ skew(p_c)
+        J[3, 3:] = rho * depth
+        rows.append(J)
+    J = np.concatenate(rows)
+    _, sv, Vt = np.linalg.svd(J)
+    return float(sv[-1] / sv[0]), Vt[-1]
+
+
+def check_observable(correspondences: Sequence[AxisCorrespondence], T_camera_base: FloatArray) -> None:
+    """Raise UnobservablePoseError when the motions leave a direction of the pose free."""
+    ratio, direction = pose_observability(correspondences, T_camera_base)
+    if ratio < MIN_OBSERVABILITY:
+        kind = "translation" if np.linalg.norm(direction[3:]) > np.linalg.norm(direction[:3]) else "rotation"
+        raise UnobservablePoseError(
+            f"these motions cannot fix the pose: the {kind} along {np.round(direction, 3).tolist()} "
+            f"(omega, tau) is free (observability {ratio:.1e} < {MIN_OBSERVABILITY}); joints whose "
+            "axes all meet in one point (e.g. the Panda's joints 1-3) cannot fix depth: add a distal joint"
+        )
+
+
+@dataclass(frozen=True)
+class ConsensusResult:
+    """Outcome of the robust linear calibration.
+
+    Attributes:
+        T_camera_base: (4, 4) float64: the pose refitted on the inliers.
+        inliers: (N,) bool: motions consistent with it.
+        eps_a: (N,) float64, rad: each motion's axis error against it.
+        eps_d: (N,) float64, m: each motion's plane distance against it.
+    """
+
+    T_camera_base: FloatArray
+    inliers: NDArray[np.bool_]
+    eps_a: FloatArray
+    eps_d: FloatArray
+
+
+def solve_consensus(correspondences: Sequence[AxisCorrespondence], max_eps_a: float,
+                    max_eps_d: float, rng: np.random.Generator, iterations: int = 100) -> ConsensusResult:
+    """Linear calibration robust to wrong motions: RANSAC over minimal sets of three motions.
+
+    Each sample's pose scores the motions by the paper's eps_a and eps_d (§V-C-2); the largest
+    consistent set is refitted, and inliers are re-selected against the refit until stable.
+
+    Raises:
+        InsufficientMotionsError: fewer than three motions, or fewer than three consistent ones.
+        UnobservablePoseError: the consistent motions cannot fix the pose.
+    """
+    n = len(correspondences)
+    if n < MIN_MOTIONS:
+        raise InsufficientMotionsError(
+            f"{n} usable motion(s); the calibration needs at least {MIN_MOTIONS}"
+        )
+
+    def score(T: FloatArray) -> tuple[NDArray[np.bool_], FloatArray, FloatArray]:
+        errs = np.array([consistency_errors(c, T) for c in correspondences])
+        return (errs[:, 0] <= max_eps_a) & (errs[:, 1] <= max_eps_d), errs[:, 0], errs[:, 1]
+
+    best: NDArray[np.bool_] | None = None
+    best_cost = np.inf
+    samples = [np.arange(n)] + [rng.choice(n, MIN_MOTIONS, replace=False) for _ in range(iterations)]
+    for idx in samples:
+        try:
+            T = solve_minimal([correspondences[i] for i in idx]) if len(idx) == MIN_MOTIONS \
+                else solve_linear([correspondences[i] for i in idx])
+        except (InsufficientMotionsError, UnobservablePoseError):
+            continue
+        inl, ea, ed = score(T)
+        # MSAC cost: inliers pay their normalized error, outliers the threshold.
+        cost = float(np.sum(np.minimum((ea / max_eps_a) ** 2 + (ed / max_eps_d) ** 2, 1.0)))
+        if inl.sum() >= MIN_MOTIONS and cost < best_cost:
+            best, best_cost = inl, cost
+    if best is None:
+        raise InsufficientMotionsError(
+            f"no three of the {n} motions agree on a pose within {max_eps_a} rad / {max_eps_d} m"
+        )
+    inliers = best
+    for _ in range(5):
+        T = solve_linear([correspondences[i] for i in np.flatnonzero(inliers)])
+        new, ea, ed = score(T)
+        if new.sum() < MIN_MOTIONS or np.array_equal(new, inliers):
+            break
+        inliers = new
+    check_observable([correspondences[i] for i in np.flatnonzero(inliers)], T)
+    return ConsensusResult(T, inliers, ea, ed)

@@ -1,0 +1,27 @@
+"""The solver's exceptions: one base class, one subclass per kind of failure."""
+
+from __future__ import annotations
+
+
+class ArcCalibError(Exception):
+    """Base class of every error ARC-Calib raises on purpose."""
+
+
+class InvalidInputError(ArcCalibError, ValueError):
+    """An argument has the wrong shape, a non-finite value, or an impossible value."""
+
+
+class DegenerateTrajectoryError(ArcCalibError):
+    """A keypoint trajectory carries no usable ellipse (a line, too few points, no motion)."""
+
+
+class DegenerateMotionError(ArcCalibError):
+    """A whole exploratory motion yields no rotation axis or reference line."""
+
+
+class InsufficientMotionsError(ArcCalibError):
+    """Too few accepted motions to estimate T_camera_base."""
+
+
+class UnobservablePoseError(ArcCalibError):
+    """The accepted motions cannot fix all six degrees of freedom of T_camera_base."""

@@ -1,0 +1,304 @@
+"""The calibrator: motions in, T_camera_base out, updated after every motion (paper Algorithm 1).
+
+For each new motion: stage-one pruning and its axis and reference plane (``solver.motion``); then
+an update: the robust linear calibration over the motions that passed stage one, pruning those
+inconsistent with it (§V-C-2, ``solver.calibration``); the bundle adjustment over every motion whose
+tracks moved, starting from the previous refined pose or the linear one (``solver.refinement``);
+the convergence monitor over the refined estimates (§V-D). A motion that stage one found ambiguous
+still informs the bundle adjustment: the rigid-rotation model with a known pose has no ambiguity.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from solver.calibration import AxisCorrespondence, ConsensusResult, solve_consensus
+from solver.camera import normalized_from_pixels
+from solver.convergence import ConvergenceConfig, ConvergenceMonitor
+from solver.errors import (
+    ArcCalibError,
+    DegenerateMotionError,
+    InsufficientMotionsError,
+    InvalidInputError,
+    UnobservablePoseError,
+)
+from solver.kinematics import AxisFunction
+from solver.motion import MotionConfig, MotionGeometry, estimate_motion_geometry
+from solver.observations import CameraIntrinsics, MotionObservation
+from solver.refinement import RefinementConfig, RefinementResult, build_track_set, refine
+
+FloatArray = NDArray[np.float64]
+Stage = Literal["none", "linear", "refined"]
+
+
+@dataclass(frozen=True)
+class CalibratorConfig:
+    """Settings of the whole calibration.
+
+    Attributes:
+        motion: per-motion estimation and stage-one pruning.
+        refinement: bundle adjustment.
+        convergence: the sliding-window monitor.
+        refine: run the bundle adjustment (off: the paper's linear method only).
+        max_eps_a: rad; stage-two pruning threshold on the axis error (Eq. 23).
+        max_eps_d: m; stage-two pruning threshold on the plane distance (Eq. 24).
+        max_tracks_per_motion: tracks beyond this are subsampled for the bundle adjustment.
+        max_frames_per_track: frames beyond this are subsampled evenly for the bundle adjustment.
+        max_std_rotation: rad; a refined pose whose 1-sigma rotation uncertainty exceeds this is
+            not reported (the motions do not fix it); also required for convergence below the
+            monitor's thresholds.
+        max_std_translation: m; the same for translation.
+        seed: seed of every random choice (RANSAC, subsampling).
+    """
+
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    refinement: RefinementConfig = field(default_factory=RefinementConfig)
+    convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
+    refine: bool = True
+    max_eps_a: float = 0.1
+    max_eps_d: float = 0.05
+    max_tracks_per_motion: int = 60
+    max_frames_per_track: int = 30
+    max_std_rotation: float = 0.05
+    max_std_translation: float = 0.05
+    seed: int = 0
+
+
+@dataclass
+class MotionReport:
+    """What became of one motion (updated at every calibration update).
+
+    Attributes:
+        index: position in the order motions were added.
+        joint: the joint that turned (0-based).
+        n_tracks: tracks received.
+        accepted: True when the motion informs the current estimate.
+        reason: why it is rejected ("" when accepted).
+        linear: True when the linear stage used it.
+        eps_a: rad, the axis error against the current estimate (None without axis or estimate).
+        eps_d: m, the plane distance against the current estimate (None likewise).
+        stage_one: "" or why stage one (no estimate needed) rejected its axis.
+        n_inlier_tracks: tracks the bundle adjustment kept.
+    """
+
+    index: int
+    joint: int
+    n_tracks: int
+    accepted: bool = False
+    reason: str = ""
+    linear: bool = False
+    eps_a: float | None = None
+    eps_d: float | None = None
+    stage_one: str = ""
+    n_inlier_tracks: int = 0
+
+
+@dataclass(frozen=True)
+class CalibrationState:
+    """The calibration after an update.
+
+    Attributes:
+        T_camera_base: (4, 4) float64 or None: the best estimate (refined, else linear).
+        stage: which stage produced it.
+        T_linear: (4, 4) or None: the linear estimate.
+        covariance: (6, 6) or None: covariance of (omega rad, tau m) from the refinement.
+        std: (6,) or None: square roots of its diagonal.
+        gamma: (6,) or None: the monitor's range over the last h estimates.
+        converged: the monitor fired and the uncertainty is within the thresholds.
+        n_accepted: motions informing the estimate.
+        n_rejected: motions not informing it.
+        rms_px: RMS reprojection error of the refinement, px.
+        message: why there is no estimate, or "".
+    """
+
+    T_camera_base: FloatArray | None
+    stage: Stage
+    T_linear: FloatArray | None
+    covariance: FloatArray | None
+    std: FloatArray | None
+    gamma: FloatArray | None
+    converged: bool
+    n_accepted: int
+    n_rejected: int
+    rms_px: float | None
+    message: str
+
+
+@dataclass
+class _Motion:
+    obs: MotionObservation
+    axis_base: FloatArray
+    point_base: FloatArray
+    geometry: MotionGeometry | None
+    tracks: list[tuple[FloatArray, FloatArray]]  # (uv normalized, delta) subsampled, moving only
+
+
+class Calibrator:
+    """Incremental ARC-Calib: ``add_motion`` after each exploratory motion, read ``state``.
+
+    Args:
+        intrinsics: the camera.
+        kinematics: Gamma(q, joint) -> (axis_base, point_base), e.g. ``DHChain.axis_and_point``.
+        config: settings; defaults to ``CalibratorConfig()``.
+    """
+
+    def __init__(self, intrinsics: CameraIntrinsics, kinematics: AxisFunction,
+                 config: CalibratorConfig | None = None):
+        self.intrinsics = intrinsics
+        self.kinematics = kinematics
+        self.config = config or CalibratorConfig()
+        self.reports: list[MotionReport] = []
+        self._motions: list[_Motion | None] = []
+        self._rng = np.random.default_rng(self.config.seed)
+        self._monitor = ConvergenceMonitor(self.config.convergence)
+        self._refined: RefinementResult | None = None
+        self.state = CalibrationState(None, "none", None, None, None, None, False, 0, 0, None,
+                                      "no motion yet")
+
+    def add_motion(self, obs: MotionObservation, update: bool = True) -> MotionReport:
+        """Take one motion's observation, prune or keep it, and (by default) update the estimate.
+
+        Raises:
+            InvalidInputError: the kinematics function rejects the motion's configuration or
+                returns a non-finite or non-unit axis.
+        """
+        report = MotionReport(index=len(self.reports), joint=obs.joint, n_tracks=len(obs.tracks))
+        self.reports.append(report)
+        axis, point = self.kinematics(obs.q_start, obs.joint)
+        axis, point = np.asarray(axis, float), np.asarray(point, float)
+        if (axis.shape != (3,) or point.shape != (3,) or not np.all(np.isfinite(axis))
+                or not np.all(np.isfinite(point)) or abs(np.linalg.norm(axis) - 1) > 1e-6):
+            raise InvalidInputError(
+                f"kinematics returned an invalid axis {axis} / point {point} for joint {obs.joint}"
+            )
+        mcfg = self.config.motion
+        moving = [t for t in obs.tracks
+                  if len(t) >= self.config.refinement.min_track_frames
+                  and np.max(np.ptp(t.pixels, axis=0)) >= mcfg.min_pixel_motion
+                  and np.ptp(t.delta) >= mcfg.min_delta_span]
+        if len(moving) < mcfg.min_tracks:
+            report.reason = (f"nothing moved: {len(moving)} of {len(obs.tracks)} tracks moved "
+                             f"{mcfg.min_pixel_motion} px over {mcfg.min_delta_span} rad "
+                             f"(need {mcfg.min_tracks})")
+            self._motions.append(None)
+        else:
+            try:
+                geometry = estimate_motion_geometry(obs, self.intrinsics, mcfg, self._rng)
+            except DegenerateMotionError as exc:
+                geometry = None
+                report.stage_one = str(exc)
+            if len(moving) > self.config.max_tracks_per_motion:
+                pick = self._rng.choice(len(moving), self.config.max_tracks_per_motion, replace=False)
+                moving = [moving[k] for k in sorted(pick)]
+            tracks = []
+            for t in moving:
+                idx = np.unique(np.linspace(0, len(t) - 1, min(len(t), self.config.max_frames_per_track)).round().astype(int))
+                tracks.append((normalized_from_pixels(t.pixels[idx], self.intrinsics), t.delta[idx]))
+            self._motions.append(_Motion(obs, axis, point, geometry, tracks))
+        if update:
+            self.update()
+        return report
+
+    def update(self) -> CalibrationState:
+        """Recompute the estimate from every motion so far; returns (and stores) the new state."""
+        cfg = self.config
+        live = [k for k, m in enumerate(self._motions) if m is not None]
+        with_axis = [k for k in live if self._motions[k].geometry is not None]
+        linear: ConsensusResult | None = None
+        message = ""
+        if len(with_axis) >= 3:
+            cors = [self._correspondence(k) for k in with_axis]
+            try:
+                linear = solve_consensus(cors, cfg.max_eps_a, cfg.max_eps_d, self._rng)
+            except (InsufficientMotionsError, UnobservablePoseError) as exc:
+                message = str(exc)
+        else:
+            message = (f"{len(with_axis)} motion(s) with an axis; the linear calibration needs 3")
+
+        refined: RefinementResult | None = None
+        start = self._refined.T_camera_base if self._refined is not None else None
+        if start is None and linear is not None:
+            start = linear.T_camera_base
+        if cfg.refine and start is not None:
+            tracks = build_track_set(
+                [(self._motions[k].axis_base, self._motions[k].point_base, self._motions[k].tracks)
+                 for k in live], self.intrinsics.focal, cfg.refinement.min_track_frames)
+            try:
+                refined = refine(tracks, start, cfg.refinement)
+                std = np.sqrt(np.diag(refined.covariance))
+                if (not np.all(np.isfinite(std)) or np.any(std[:3] > cfg.max_std_rotation)
+                        or np.any(std[3:] > cfg.max_std_translation)):
+                    message = (f"the motions do not fix the pose: 1-sigma uncertainty "
+                               f"{np.round(std, 4).tolist()} (rad, m) is too large")
+                    refined = None
+            except (ArcCalibError, np.linalg.LinAlgError) as exc:
+                message = f"refinement failed: {exc}"
+                refined = None
+            if refined is not None:
+                inlier_tracks = np.bincount(tracks.motion[refined.track_inliers], minlength=len(live))
+                self._refined = refined
+        self._update_reports(live, with_axis, linear, refined,
+                             inlier_tracks if refined is not None else None)
+
+        T: FloatArray | None
+        if refined is not None:
+            T, stage = refined.T_camera_base, "refined"
+        elif linear is not None and not cfg.refine:
+            T, stage = linear.T_camera_base, "linear"
+        elif linear is not None:
+            T, stage = linear.T_camera_base, "linear"
+        else:
+            T, stage = None, "none"
+        if T is not None:
+            self._monitor.push(T)
+        cov = refined.covariance if refined is not None else None
+        std = np.sqrt(np.diag(cov)) if cov is not None else None
+        converged = self._monitor.converged and (
+            stage == "linear" and not cfg.refine
+            or stage == "refined" and std is not None
+            and bool(np.all(std[:3] < cfg.convergence.max_rotation_range)
+                     and np.all(std[3:] < cfg.convergence.max_translation_range)))
+        n_acc = sum(r.accepted for r in self.reports)
+        self.state = CalibrationState(
+            T_camera_base=T, stage=stage,
+            T_linear=linear.T_camera_base if linear is not None else None,
+            covariance=cov, std=std, gamma=self._monitor.gamma, converged=bool(converged),
+            n_accepted=n_acc, n_rejected=len(self.reports) - n_acc,
+            rms_px=refined.rms_px if refined is not None else None,
+            message="" if T is not None else message,
+        )
+        return self.state
+
+    def _correspondence(self, k: int) -> AxisCorrespondence:
+        m = self._motions[k]
+        return AxisCorrespondence(m.axis_base, m.point_base, m.geometry.axis_cam,
+                                  m.geometry.plane_normal)
+
+    def _update_reports(self, live: list[int], with_axis: list[int], linear: ConsensusResult | None,
+                        refined: RefinementResult | None, inlier_tracks: NDArray[np.int64] | None) -> None:
+        min_tracks = self.config.motion.min_tracks
+        for slot, k in enumerate(live):
+            r = self.reports[k]
+            r.linear = False
+            if linear is not None and k in with_axis:
+                i = with_axis.index(k)
+                r.linear = bool(linear.inliers[i])
+                r.eps_a, r.eps_d = float(linear.eps_a[i]), float(linear.eps_d[i])
+            if refined is not None:
+                r.n_inlier_tracks = int(inlier_tracks[slot])
+                r.accepted = r.n_inlier_tracks >= min_tracks
+                r.reason = "" if r.accepted else (
+                    f"only {r.n_inlier_tracks} of {len(self._motions[k].tracks)} tracks agree with "
+                    f"the refined pose (need {min_tracks})")
+            elif linear is not None:
+                r.accepted = r.linear
+                r.reason = "" if r.accepted else (
+                    r.stage_one or f"inconsistent with the estimate: eps_a = {r.eps_a:.3g} rad, "
+                    f"eps_d = {r.eps_d:.3g} m (limits {self.config.max_eps_a}, {self.config.max_eps_d})")
+            else:
+                r.accepted = False
+                r.reason = r.stage_one or "waiting: no estimate yet"

@@ -1,0 +1,182 @@
+"""Reference positions of a motion's rotation axis (paper §IV-D, Eq. 15-18).
+
+For a candidate axis a (unit, camera frame) the trajectories are centrally projected onto the plane
+sigma: a . X = 1. Circles in planes normal to a map to circles on sigma by a similarity, so each
+trajectory becomes a circle traversed at the known joint angles delta. The axis itself projects
+onto sigma as a line through the circle centres and through a's own vanishing point (the foot of
+the perpendicular from the camera centre), so the plane through the camera centre that contains
+the axis has a normal rho perpendicular to a and to every centre.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+def plane_basis(axis: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Orthonormal e1, e2 (each (3,)) spanning the plane normal to ``axis``, with e1 x e2 = axis."""
+    helper = np.eye(3)[int(np.argmin(np.abs(axis)))]
+    e1 = np.cross(helper, axis)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(axis, e1)
+
+
+def project_to_plane(rays: FloatArray, axis: FloatArray) -> FloatArray:
+    """Central projection of rays onto sigma: a . X = 1, in sigma's (e1, e2) coordinates.
+
+    Args:
+        rays: (M, 3) float64: rays (u, v, 1) in the camera frame.
+        axis: (3,) float64: unit normal a of sigma.
+
+    Returns:
+        (M, 2) float64: coordinates on sigma (unitless: metres per metre of plane distance).
+    """
+    e1, e2 = plane_basis(axis)
+    X = rays / (rays @ axis)[:, None]
+    return np.column_stack([X @ e1, X @ e2])
+
+
+@dataclass(frozen=True)
+class PhaseCircles:
+    """Circles z = c + alpha exp(i (delta + beta)) fitted to L trajectories on one plane.
+
+    Attributes:
+        centres: (L, 2) float64: circle centres on the plane.
+        radii: (L,) float64: alpha >= 0.
+        phases: (L,) float64, radians: beta.
+        costs: (L,) float64: the paper's J, sum of squared distances to the model points.
+        counts: (L,) int: points per trajectory.
+    """
+
+    centres: FloatArray
+    radii: FloatArray
+    phases: FloatArray
+    costs: FloatArray
+    counts: IntArray
+
+
+def fit_phase_circles(points: FloatArray, delta: FloatArray, track_ids: IntArray,
+                      n_tracks: int) -> PhaseCircles:
+    """Globally optimal phase-model circle fit (Eq. 16-17) for many trajectories at once.
+
+    With z = u' + i v' and gamma = alpha exp(i beta), the model z_k = c + gamma exp(i delta_k) is
+    linear in the complex unknowns (c, gamma), so the least-squares problem has one closed-form
+    minimizer. It is the paper's global minimum: the first-order conditions (Eq. 17) have exactly
+    two critical points in beta in [0, 2 pi), (alpha, beta) and (-alpha, beta + pi), which describe
+    the same curve; the one with alpha >= 0 is |gamma|, arg(gamma). No iterative solver is involved.
+
+    Args:
+        points: (P, 2) float64: all trajectories' points on the plane.
+        delta: (P,) float64, radians: joint turn at each point.
+        track_ids: (P,) int: which trajectory (0..n_tracks-1) each point belongs to.
+        n_tracks: L.
+
+    Returns:
+        The L circles; a trajectory whose delta never changes gets radius 0 and infinite cost.
+    """
+    z = points[:, 0] + 1j * points[:, 1]
+    e = np.exp(1j * delta)
+
+    def per_track(values: NDArray[np.complex128]) -> NDArray[np.complex128]:
+        re = np.bincount(track_ids, weights=values.real, minlength=n_tracks)
+        im = np.bincount(track_ids, weights=values.imag, minlength=n_tracks)
+        return re + 1j * im
+
+    n = np.bincount(track_ids, minlength=n_tracks).astype(np.float64)
+    S, Z1, Z2 = per_track(e), per_track(z), per_track(np.conj(e) * z)
+    det = n * n - np.abs(S) ** 2
+    good = det > 1e-12 * np.maximum(n * n, 1.0)
+    safe = np.where(good, det, 1.0)
+    c = np.where(good, (n * Z1 - S * Z2) / safe, Z1 / np.maximum(n, 1))
+    gamma = np.where(good, (n * Z2 - np.conj(S) * Z1) / safe, 0)
+    residual = z - c[track_ids] - gamma[track_ids] * e
+    costs = np.bincount(track_ids, weights=np.abs(residual) ** 2, minlength=n_tracks)
+    costs = np.where(good, costs, np.inf)
+    return PhaseCircles(
+        centres=np.column_stack([c.real, c.imag]),
+        radii=np.abs(gamma),
+        phases=np.angle(gamma),
+        costs=costs,
+        counts=n.astype(np.int64),
+    )
+
+
+def candidate_score(circles: PhaseCircles, keep_fraction: float = 0.75) -> float:
+    """Eq. 18's score J' of one candidate axis, scale-free and robust to bad trajectories.
+
+    The paper sums J / alpha; J scales with the square of sigma's (arbitrary) scale and alpha with
+    its first power, so we use J / (M alpha^2): each trajectory's mean squared misfit relative to its
+    radius, comparable between candidates whose planes differ. Trajectories from tracker failures
+    misfit every candidate alike and would drown the comparison, so the sum runs over the best
+    ``keep_fraction`` of the trajectories (a trimmed sum).
+    """
+    rel = circles.costs / (np.maximum(circles.counts, 1) * np.maximum(circles.radii, 1e-300) ** 2)
+    rel = np.sort(np.where(np.isfinite(rel), rel, 1e6))
+    return float(np.sum(rel[: max(1, int(np.ceil(keep_fraction * rel.size)))]))
+
+
+def centres_3d(centres: FloatArray, axis: FloatArray) -> FloatArray:
+    """Points on sigma (a . X = 1) from their (e1, e2) coordinates: (L, 2) -> (L, 3)."""
+    e1, e2 = plane_basis(axis)
+    return axis[None, :] + centres[:, :1] * e1 + centres[:, 1:] * e2
+
+
+def fit_reference_plane(centres: FloatArray, axis: FloatArray, weights: FloatArray,
+                        rng: np.random.Generator, inlier_angle: float = 0.01,
+                        iterations: int = 64) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """RANSAC line through the circle centres and the axis's vanishing point (Eq. 18's line).
+
+    Each centre alone fixes a candidate line (it must also pass through the vanishing point a), so
+    one centre is a minimal sample. Inliers lie within ``inlier_angle`` of the line as seen from the
+    camera; the final line is the weighted least-squares fit over the inliers.
+
+    Args:
+        centres: (L, 2) float64: circle centres on sigma in (e1, e2) coordinates.
+        axis: (3,) float64: unit axis a (sigma's normal).
+        weights: (L,) float64: confidence of each centre (>= 0).
+        rng: random generator for the RANSAC samples.
+        inlier_angle: radians; distance from the line divided by the distance from a's foot. The
+            final inliers lie within the larger of this and 3 robust sigma of the scatter.
+        iterations: RANSAC samples at most.
+
+    Returns:
+        rho: (3,) float64, the unit normal of the plane through the camera centre that contains the
+        axis (its sign is arbitrary: the constraint rho . p = 0 does not depend on it), and
+        inliers: (L,) bool, the centres that support the line.
+    """
+    L = centres.shape[0]
+    dist = np.linalg.norm(centres, axis=1)
+    directions = centres / np.maximum(dist, 1e-300)[:, None]
+    order = rng.permutation(L)[:iterations]
+    best_inliers = np.zeros(L, dtype=bool)
+    best_support = -1.0
+    for j in order:
+        normal2d = np.array([-directions[j, 1], directions[j, 0]])
+        off = np.abs(centres @ normal2d) / np.maximum(dist, 1e-300)
+        inliers = off < inlier_angle
+        support = float(np.sum(weights[inliers]))
+        if support > best_support:
+            best_support, best_inliers = support, inliers
+    # Adapt the threshold to the centres' own scatter about the consensus line (3 robust sigma).
+    normal2d = _line_normal(centres[best_inliers], weights[best_inliers])
+    off = np.abs(centres @ normal2d) / np.maximum(dist, 1e-300)
+    scale = 1.4826 * float(np.median(off))
+    best_inliers = off < max(inlier_angle, 3.0 * scale)
+    normal2d = _line_normal(centres[best_inliers], weights[best_inliers])
+    e1, e2 = plane_basis(axis)
+    direction3d = -normal2d[1] * e1 + normal2d[0] * e2
+    rho = np.cross(axis, direction3d)
+    return rho / np.linalg.norm(rho), best_inliers
+
+
+def _line_normal(centres: FloatArray, weights: FloatArray) -> FloatArray:
+    """Unit normal (2,) of the weighted least-squares line through the origin and the centres."""
+    pts = centres * np.sqrt(weights)[:, None]
+    _, _, Vt = np.linalg.svd(pts, full_matrices=False)
+    return np.array([-Vt[0, 1], Vt[0, 0]])

@@ -1,0 +1,241 @@
+"""Tests of solver/refinement.py: the bundle adjustment of T_camera_base and the keypoints."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from scipy.spatial.transform import Rotation
+
+import solver.refinement as refinement
+from solver.errors import InsufficientMotionsError, InvalidInputError
+from solver.frames import perturb, pose_errors
+from solver.refinement import (
+    RefinementConfig,
+    _Problem,
+    build_track_set,
+    pose_covariance,
+    refine,
+    triangulate_tracks,
+)
+from tests.solver.scene import FOCAL, FX, project_normalized, random_pose, random_unit
+
+#: Central differences with step 1e-6 on residuals of ~100 px: truncation ~1e-12 and rounding
+#: ~1e-8 against Jacobian entries of ~1e3 px per unit, far inside 1e-5 relative.
+JACOBIAN_RTOL = 1e-5
+FD_STEP = 1e-6
+
+#: Noise-free triangulation at the true pose: a 3x3 solve per track, float64 rounding only.
+POINT_TOL = 1e-9
+
+#: Noise-free refinement converges to the truth up to the solver's xtol/ftol (1e-12 / 1e-10).
+NOISE_FREE_POSE_TOL = 1e-8
+
+#: Pixel noise of the noisy test, px per coordinate.
+NOISE_PX = 0.5
+
+#: The start of the refinement: 0.02 rad and 2 cm away from the truth.
+START_ROT, START_TRANS = 0.02, 0.02
+
+
+@dataclass
+class Scene:
+    T_true: np.ndarray
+    motions: list  # (axis_base, point_base, [(uv, delta), ...]) per motion
+    points: np.ndarray  # (T, 3) true p0 of each track, base frame, m
+
+
+def _make_scene(seed: int, n_motions: int = 4, n_tracks: int = 5, n_frames: int = 20,
+                noise_px: float = 0.0) -> Scene:
+    """Keypoints fixed on links turned about known axes, projected by a plain pinhole."""
+    rng = np.random.default_rng(seed)
+    T = random_pose(rng)
+    R, t = T[:3, :3], T[:3, 3]
+    motions, points = [], []
+    for _ in range(n_motions):
+        axis, pivot = random_unit(rng), rng.uniform(-0.3, 0.3, 3)
+        delta = np.linspace(0.0, rng.uniform(0.8, 1.5), n_frames)
+        turns = Rotation.from_rotvec(np.outer(delta, axis))
+        tracks = []
+        for _ in range(n_tracks):
+            p0 = pivot + random_unit(rng) * rng.uniform(0.05, 0.25)
+            p_base = turns.apply(p0 - pivot) + pivot
+            uv = project_normalized(p_base @ R.T + t)
+            uv = uv + rng.normal(0.0, noise_px, uv.shape) / FOCAL
+            tracks.append((uv, delta))
+            points.append(p0)
+        motions.append((axis, pivot, tracks))
+    return Scene(T, motions, np.array(points))
+
+
+def _start_pose(T_true: np.ndarray, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    xi = np.concatenate([START_ROT * random_unit(rng), START_TRANS * random_unit(rng)])
+    return perturb(T_true, xi)
+
+
+def _finite_difference_jacobian(problem: _Problem, x: np.ndarray) -> np.ndarray:
+    J = np.empty((problem.shape[0], x.size))
+    for k in range(x.size):
+        step = np.zeros_like(x)
+        step[k] = FD_STEP
+        J[:, k] = (problem.residuals(x + step) - problem.residuals(x - step)) / (2 * FD_STEP)
+    return J
+
+
+@pytest.mark.parametrize("omega_scale", [0.0, 0.02, 0.5], ids=["omega-zero", "omega-small",
+                                                              "omega-large"])
+def test_jacobian_matches_finite_differences(omega_scale):
+    scene = _make_scene(1, n_motions=3, n_tracks=2, n_frames=8)
+    tracks = build_track_set(scene.motions, FOCAL)
+    rng = np.random.default_rng(2)
+    T0 = _start_pose(scene.T_true, 3)
+    x = np.concatenate([omega_scale * random_unit(rng), rng.normal(0, 0.02, 3),
+                        (scene.points + rng.normal(0, 0.01, scene.points.shape)).ravel()])
+    problem = _Problem(tracks, T0)
+    J = problem.jacobian(x)
+    assert sp.issparse(J)
+    assert J.shape == problem.shape == (2 * tracks.uv.shape[0], 6 + 3 * tracks.n_tracks)
+    J = J.toarray()
+    J_fd = _finite_difference_jacobian(problem, x)
+    np.testing.assert_allclose(J, J_fd, rtol=JACOBIAN_RTOL, atol=JACOBIAN_RTOL * np.abs(J).max())
+
+
+def test_residuals_vanish_at_truth():
+    scene = _make_scene(4)
+    tracks = build_track_set(scene.motions, FOCAL)
+    problem = _Problem(tracks, scene.T_true)
+    x = np.concatenate([np.zeros(6), scene.points.ravel()])
+    assert np.max(np.abs(problem.residuals(x))) < 1e-9  # px
+
+
+def test_build_track_set_flattens_and_skips_short_tracks():
+    scene = _make_scene(5, n_motions=2, n_tracks=2, n_frames=10)
+    axis, pivot, tracks = scene.motions[1]
+    short = (tracks[0][0][:3], tracks[0][1][:3])
+    motions = [scene.motions[0], (axis, pivot, [short, *tracks])]
+    ts = build_track_set(motions, FOCAL, min_frames=4)
+    assert ts.n_tracks == 4
+    np.testing.assert_array_equal(ts.motion, [0, 0, 1, 1])
+    np.testing.assert_array_equal(np.bincount(ts.track), [10, 10, 10, 10])
+    np.testing.assert_array_equal(ts.pivot[2], pivot)
+    np.testing.assert_allclose(ts.rot[-1], Rotation.from_rotvec(tracks[1][1][-1] * axis).as_matrix(),
+                               atol=1e-12)
+
+
+def test_build_track_set_without_long_tracks_raises():
+    scene = _make_scene(5, n_motions=1, n_tracks=2, n_frames=3)
+    with pytest.raises(InsufficientMotionsError, match="no track long enough to refine"):
+        build_track_set(scene.motions, FOCAL, min_frames=4)
+
+
+def test_triangulate_tracks_recovers_true_points():
+    scene = _make_scene(6)
+    points, ok = triangulate_tracks(build_track_set(scene.motions, FOCAL), scene.T_true)
+    assert np.all(ok)
+    np.testing.assert_allclose(points, scene.points, atol=POINT_TOL)
+
+
+def test_triangulate_tracks_flags_a_static_track():
+    scene = _make_scene(6, n_motions=2, n_tracks=2)
+    uv, delta = scene.motions[0][2][0]
+    static = (np.repeat(uv[:1], uv.shape[0], axis=0), np.zeros_like(delta))  # one ray, no parallax
+    axis, pivot, tracks = scene.motions[0]
+    motions = [(axis, pivot, [static, *tracks[1:]]), scene.motions[1]]
+    points, ok = triangulate_tracks(build_track_set(motions, FOCAL), scene.T_true)
+    np.testing.assert_array_equal(ok, [False, True, True, True])
+    np.testing.assert_allclose(points[1:], scene.points[1:], atol=POINT_TOL)
+
+
+def test_refine_recovers_pose_noise_free():
+    scene = _make_scene(7)
+    T_init = _start_pose(scene.T_true, 8)
+    assert pose_errors(T_init, scene.T_true) == pytest.approx((START_ROT, START_TRANS))
+    result = refine(build_track_set(scene.motions, FOCAL), T_init)
+    rot_err, trans_err = pose_errors(result.T_camera_base, scene.T_true)
+    assert rot_err < NOISE_FREE_POSE_TOL
+    assert trans_err < NOISE_FREE_POSE_TOL
+    assert np.all(result.track_inliers)
+    np.testing.assert_allclose(result.points_base, scene.points, atol=1e-6)
+    assert result.rms_px < 1e-6
+
+
+def test_refine_with_pixel_noise_improves_on_start():
+    scene = _make_scene(9, noise_px=NOISE_PX)
+    T_init = _start_pose(scene.T_true, 10)
+    result = refine(build_track_set(scene.motions, FOCAL), T_init)
+    rot_err, trans_err = pose_errors(result.T_camera_base, scene.T_true)
+    assert rot_err < START_ROT / 5
+    assert trans_err < START_TRANS / 5
+    assert np.all(result.track_inliers)
+    # 400 observations: the estimated noise is within ~5% of the truth, allow 20%.
+    assert result.sigma_px == pytest.approx(NOISE_PX, rel=0.2)
+    cov = result.covariance
+    np.testing.assert_allclose(cov, cov.T, rtol=1e-9, atol=0)
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+
+
+def test_refine_drops_a_jumping_track():
+    scene = _make_scene(11, noise_px=NOISE_PX)
+    axis, pivot, tracks = scene.motions[2]
+    uv, delta = tracks[3]
+    jumped = uv.copy()
+    jumped[10:] += np.array([25.0, -15.0]) / FOCAL  # the tracker jumped to another feature
+    scene.motions[2] = (axis, pivot, [*tracks[:3], (jumped, delta), *tracks[4:]])
+    result = refine(build_track_set(scene.motions, FOCAL), _start_pose(scene.T_true, 12))
+    expected = np.ones(20, dtype=bool)
+    expected[2 * 5 + 3] = False
+    np.testing.assert_array_equal(result.track_inliers, expected)
+    assert np.all(np.isnan(result.points_base[~expected]))
+    rot_err, trans_err = pose_errors(result.T_camera_base, scene.T_true)
+    assert rot_err < START_ROT / 5
+    assert trans_err < START_TRANS / 5
+
+
+def test_pose_covariance_is_the_pose_block_of_the_full_inverse():
+    scene = _make_scene(13, n_motions=3, n_tracks=3, n_frames=10)
+    tracks = build_track_set(scene.motions, FOCAL)
+    problem = _Problem(tracks, scene.T_true)
+    J = problem.jacobian(np.concatenate([np.zeros(6), scene.points.ravel()]))
+    sigma2 = 0.25
+    full = sigma2 * np.linalg.inv((J.T @ J).toarray())
+    np.testing.assert_allclose(pose_covariance(J, sigma2), full[:6, :6], rtol=1e-6)
+
+
+def test_refine_rejects_non_finite_start():
+    scene = _make_scene(14, n_motions=2, n_tracks=2)
+    T = scene.T_true.copy()
+    T[0, 3] = np.nan
+    with pytest.raises(InvalidInputError, match="T_init contains NaN"):
+        refine(build_track_set(scene.motions, FOCAL), T)
+
+
+def test_refine_needs_two_tracks():
+    scene = _make_scene(15, n_motions=1, n_tracks=1)
+    with pytest.raises(InsufficientMotionsError, match="fewer than two tracks"):
+        refine(build_track_set(scene.motions, FOCAL), scene.T_true)
+
+
+def test_refinement_config_defaults():
+    config = RefinementConfig()
+    assert config.outlier_px == 0.5
+    assert config.min_track_frames == 4
+
+
+@pytest.mark.parametrize("name", refinement.__all__)
+def test_public_names_import(name):
+    assert getattr(refinement, name) is not None
+
+
+def test_residuals_are_in_pixels():
+    scene = _make_scene(16, n_motions=1, n_tracks=2)
+    tracks = build_track_set(scene.motions, FOCAL)
+    problem = _Problem(tracks, scene.T_true)
+    points = scene.points.copy()
+    x = np.concatenate([np.zeros(6), points.ravel()])
+    shifted = x.copy()
+    shifted[3] = 1e-4  # move the camera 0.1 mm sideways: ~fx * 1e-4 / z px
+    z = (scene.T_true[:3, :3] @ points[0] + scene.T_true[:3, 3])[2]
+    assert problem.residuals(shifted)[0] == pytest.approx(FX * 1e-4 / z, rel=0.2)
