@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from solver.errors import InsufficientMotionsError, UnobservablePoseError
+from solver.errors import InsufficientMotionsError, InvalidInputError, UnobservablePoseError
 from solver.frames import project_to_so3, skew, transform_from_rt
 
 FloatArray = NDArray[np.float64]
@@ -121,6 +121,8 @@ def solve_linear(correspondences: Sequence[AxisCorrespondence],
         return solve_minimal(correspondences)
     unit_depths = depths is None
     depths = np.ones(n) if depths is None else np.asarray(depths, dtype=np.float64)
+    if depths.shape != (n,):
+        raise InvalidInputError(f"depths must have shape ({n},), got {depths.shape}")
     blocks = [_rows(c, d) for c, d in zip(correspondences, depths, strict=True)]
     H = np.concatenate([b[0] for b in blocks])
     K = np.concatenate([b[1] for b in blocks])
@@ -181,7 +183,7 @@ def pose_observability(correspondences: Sequence[AxisCorrespondence],
         rho /= max(np.linalg.norm(rho), 1e-300)
         J = np.zeros((4, 6))
         J[:3, :3] = -skew(a_c) @ skew(a_c)  # d(a_c x Exp(w) a_c)/dw
-        J[3, :3] = -rho @ skew(p_c)
+        J[3, :3] = -rho @ skew(R @ c.point_base)  # d(Exp(w) R d_b)/dw = -[R d_b]x
         J[3, 3:] = rho * depth
         rows.append(J)
     J = np.concatenate(rows)
@@ -241,18 +243,24 @@ def solve_consensus(correspondences: Sequence[AxisCorrespondence], max_eps_a: fl
 
     best: NDArray[np.bool_] | None = None
     best_cost = np.inf
+    unobservable: UnobservablePoseError | None = None
     samples = [np.arange(n)] + [rng.choice(n, MIN_MOTIONS, replace=False) for _ in range(iterations)]
     for idx in samples:
         try:
             T = solve_minimal([correspondences[i] for i in idx]) if len(idx) == MIN_MOTIONS \
                 else solve_linear([correspondences[i] for i in idx])
-        except (InsufficientMotionsError, UnobservablePoseError):
+        except UnobservablePoseError as exc:
+            unobservable = exc
+            continue
+        except InsufficientMotionsError:
             continue
         inl, ea, ed = score(T)
         # MSAC cost: inliers pay their normalized error, outliers the threshold.
         cost = float(np.sum(np.minimum((ea / max_eps_a) ** 2 + (ed / max_eps_d) ** 2, 1.0)))
         if inl.sum() >= MIN_MOTIONS and cost < best_cost:
             best, best_cost = inl, cost
+    if best is None and unobservable is not None:
+        raise unobservable
     if best is None:
         raise InsufficientMotionsError(
             f"no three of the {n} motions agree on a pose within {max_eps_a} rad / {max_eps_d} m"

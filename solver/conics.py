@@ -66,11 +66,11 @@ def ellipse_reason(Q: FloatArray) -> str:
     """Why a conic matrix Q (3, 3) is not a real, non-degenerate ellipse; "" if it is one."""
     A, B, C = Q[0, 0], 2 * Q[0, 1], Q[1, 1]
     trace = A + C
-    if not np.all(np.isfinite(Q)) or abs(trace) < 1e-300:
+    if not np.all(np.isfinite(Q)) or not np.any(Q):
         return "conic fit is degenerate"
-    ellipticity = (4 * A * C - B * B) / trace**2
-    if ellipticity <= 0:
+    if 4 * A * C - B * B <= 0:
         return "trajectory is a hyperbola or parabola, not an ellipse (4AC - B^2 <= 0)"
+    ellipticity = (4 * A * C - B * B) / trace**2
     if ellipticity < MIN_RELATIVE_ELLIPTICITY:
         return f"trajectory is nearly a line (relative 4AC - B^2 = {ellipticity:.3g})"
     if np.linalg.det(Q) * np.sign(trace) >= 0:

@@ -10,6 +10,7 @@ still informs the bundle adjustment: the rigid-rotation model with a known pose 
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -113,6 +114,7 @@ class CalibrationState:
         n_rejected: motions not informing it.
         rms_px: RMS reprojection error of the refinement, px.
         message: why there is no estimate, or "".
+        seconds: wall time of this update's stages, {"linear": s, "refined": s}.
     """
 
     T_camera_base: FloatArray | None
@@ -126,6 +128,7 @@ class CalibrationState:
     n_rejected: int
     rms_px: float | None
     message: str
+    seconds: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -135,6 +138,7 @@ class _Motion:
     point_base: FloatArray
     geometry: MotionGeometry | None
     tracks: list[tuple[FloatArray, FloatArray]]  # (uv normalized, delta) subsampled, moving only
+    points: FloatArray | None = None  # (len(tracks), 3) last refined points, NaN where unknown
 
 
 class Calibrator:
@@ -206,6 +210,7 @@ class Calibrator:
     def update(self) -> CalibrationState:
         """Recompute the estimate from every motion so far; returns (and stores) the new state."""
         cfg = self.config
+        t_start = time.perf_counter()
         live = [k for k, m in enumerate(self._motions) if m is not None]
         with_axis = [k for k in live if self._motions[k].geometry is not None]
         linear: ConsensusResult | None = None
@@ -219,6 +224,7 @@ class Calibrator:
         else:
             message = (f"{len(with_axis)} motion(s) with an axis; the linear calibration needs 3")
 
+        t_linear = time.perf_counter()
         refined: RefinementResult | None = None
         start = self._refined.T_camera_base if self._refined is not None else None
         if start is None and linear is not None:
@@ -227,8 +233,11 @@ class Calibrator:
             tracks = build_track_set(
                 [(self._motions[k].axis_base, self._motions[k].point_base, self._motions[k].tracks)
                  for k in live], self.intrinsics.focal, cfg.refinement.min_track_frames)
+            warm = np.concatenate([
+                self._motions[k].points if self._motions[k].points is not None
+                else np.full((len(self._motions[k].tracks), 3), np.nan) for k in live])
             try:
-                refined = refine(tracks, start, cfg.refinement)
+                refined = refine(tracks, start, cfg.refinement, points_init=warm)
                 std = np.sqrt(np.diag(refined.covariance))
                 if (not np.all(np.isfinite(std)) or np.any(std[:3] > cfg.max_std_rotation)
                         or np.any(std[3:] > cfg.max_std_translation)):
@@ -241,14 +250,16 @@ class Calibrator:
             if refined is not None:
                 inlier_tracks = np.bincount(tracks.motion[refined.track_inliers], minlength=len(live))
                 self._refined = refined
+                offsets = np.cumsum([0] + [len(self._motions[k].tracks) for k in live])
+                for slot, k in enumerate(live):
+                    self._motions[k].points = refined.points_base[offsets[slot]:offsets[slot + 1]]
+        t_refined = time.perf_counter()
         self._update_reports(live, with_axis, linear, refined,
                              inlier_tracks if refined is not None else None)
 
         T: FloatArray | None
         if refined is not None:
             T, stage = refined.T_camera_base, "refined"
-        elif linear is not None and not cfg.refine:
-            T, stage = linear.T_camera_base, "linear"
         elif linear is not None:
             T, stage = linear.T_camera_base, "linear"
         else:
@@ -270,6 +281,7 @@ class Calibrator:
             n_accepted=n_acc, n_rejected=len(self.reports) - n_acc,
             rms_px=refined.rms_px if refined is not None else None,
             message="" if T is not None else message,
+            seconds={"linear": t_linear - t_start, "refined": t_refined - t_linear},
         )
         return self.state
 

@@ -148,7 +148,14 @@ def _left_jacobian(omega: FloatArray) -> FloatArray:
 
 
 class _Problem:
-    """Residuals and sparse Jacobian of the bundle adjustment over x = (omega, tau, p0_1..p0_T)."""
+    """Residuals and sparse Jacobian of the bundle adjustment over x = (omega, tau, q_1..q_T).
+
+    Each track's unknown is q, its point in the camera frame at the start configuration (delta =
+    0), not its base-frame point p0 = R^T (q - t): the frame-0 residual then does not depend on the
+    pose, which decouples points from pose and makes the sparse normal equations far better
+    conditioned for LSMR. The pose's marginal covariance is the same in either parameterization
+    (the change of variables is block-triangular with an identity pose block).
+    """
 
     def __init__(self, tracks: TrackSet, T0: FloatArray):
         self.tracks = tracks
@@ -161,22 +168,28 @@ class _Problem:
         self.rows, self.cols = rows.ravel(), cols.ravel()
         self.shape = (2 * P, 6 + 3 * tracks.n_tracks)
 
-    def _camera_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    def pose(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """R (3, 3) and t (3,) at parameters x."""
+        return Rotation.from_rotvec(x[:3]).as_matrix() @ self.T0[:3, :3], self.T0[:3, 3] + x[3:6]
+
+    def _camera_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         tr = self.tracks
-        R = Rotation.from_rotvec(x[:3]).as_matrix() @ self.T0[:3, :3]
-        t = self.T0[:3, 3] + x[3:6]
-        p0 = x[6:].reshape(-1, 3)
-        y = p0[tr.track] - tr.pivot[tr.track]
-        p_base = np.einsum("pij,pj->pi", tr.rot, y) + tr.pivot[tr.track]
-        return p_base @ R.T + t, R, p_base
+        R, t = self.pose(x)
+        q = x[6:].reshape(-1, 3)[tr.track]
+        y = (q - t) @ R  # R^T (q - t): the base-frame point at delta = 0
+        pivot = tr.pivot[tr.track]
+        p_base = np.einsum("pij,pj->pi", tr.rot, y - pivot) + pivot
+        return p_base @ R.T + t, R, t, q
 
     def residuals(self, x: FloatArray) -> FloatArray:
-        pc, _, _ = self._camera_points(x)
+        """(2P,) float64, px: reprojection errors."""
+        pc = self._camera_points(x)[0]
         return ((pc[:, :2] / pc[:, 2:] - self.tracks.uv) * self.tracks.focal).ravel()
 
     def jacobian(self, x: FloatArray) -> sp.csr_matrix:
+        """(2P, 6 + 3T) sparse Jacobian of ``residuals``."""
         tr = self.tracks
-        pc, R, _ = self._camera_points(x)
+        pc, R, t, q = self._camera_points(x)
         z = pc[:, 2]
         dproj = np.zeros((pc.shape[0], 2, 3))
         dproj[:, 0, 0] = 1 / z
@@ -184,10 +197,10 @@ class _Problem:
         dproj[:, 0, 2] = -pc[:, 0] / z**2
         dproj[:, 1, 2] = -pc[:, 1] / z**2
         dproj *= tr.focal[None, :, None]
-        rotated = pc - (self.T0[:3, 3] + x[3:6])  # Exp(omega) R0 p_base
-        d_omega = -skew(rotated) @ _left_jacobian(x[:3])  # (P, 3, 3)
-        d_point = np.einsum("ij,pjk->pik", R, tr.rot)
-        data = np.concatenate([dproj @ d_omega, dproj, dproj @ d_point], axis=2)
+        M = np.einsum("ij,pjk,lk->pil", R, tr.rot, R)  # R Rot_k R^T
+        d_omega = (-skew(pc - t) + M @ skew(q - t)) @ _left_jacobian(x[:3])
+        d_tau = np.eye(3) - M
+        data = np.concatenate([dproj @ d_omega, dproj @ d_tau, dproj @ M], axis=2)
         return sp.csr_matrix((data.ravel(), (self.rows, self.cols)), shape=self.shape)
 
 
@@ -213,13 +226,20 @@ class RefinementResult:
 
 
 def _solve(tracks: TrackSet, T0: FloatArray, points: FloatArray, loss: str, f_scale: float,
-           max_nfev: int) -> tuple[FloatArray, FloatArray, _Problem, object]:
+           max_nfev: int, lsmr_tol: float = 1e-12) -> tuple[FloatArray, FloatArray, _Problem, object]:
+    """One least-squares pass from pose T0 and base-frame points (T, 3); returns base points.
+
+    ``lsmr_tol`` must be tight (1e-12) far from the optimum, where TRF otherwise stalls; the
+    final pass starts at the robust optimum and converges with a looser one.
+    """
     problem = _Problem(tracks, T0)
-    x0 = np.concatenate([np.zeros(6), points.ravel()])
+    q0 = points @ T0[:3, :3].T + T0[:3, 3]
+    x0 = np.concatenate([np.zeros(6), q0.ravel()])
     sol = least_squares(problem.residuals, x0, jac=problem.jacobian, method="trf", loss=loss,
                         f_scale=f_scale, tr_solver="lsmr", x_scale="jac", max_nfev=max_nfev,
-                        tr_options={"atol": 1e-12, "btol": 1e-12}, xtol=1e-12, ftol=1e-10)
-    return perturb(T0, sol.x[:6]), sol.x[6:].reshape(-1, 3), problem, sol
+                        tr_options={"atol": lsmr_tol, "btol": lsmr_tol}, xtol=1e-10, ftol=1e-9)
+    R, t = problem.pose(sol.x)
+    return perturb(T0, sol.x[:6]), (sol.x[6:].reshape(-1, 3) - t) @ R, problem, sol
 
 
 def pose_covariance(jac: sp.csr_matrix, sigma2: float) -> FloatArray:
@@ -277,7 +297,7 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     if good.sum() < 2:
         raise InsufficientMotionsError("fewer than two tracks agree with the refined pose")
     sub2 = _subset(sub, good)
-    T, pts2, problem, sol = _solve(sub2, T, pts[good], "linear", 1.0, config.max_nfev)
+    T, pts2, problem, sol = _solve(sub2, T, pts[good], "linear", 1.0, config.max_nfev, 1e-8)
     m, n = sol.fun.size, sol.x.size
     sigma2 = float(np.sum(sol.fun**2) / max(m - n, 1))
     cov = pose_covariance(sol.jac if sp.issparse(sol.jac) else sp.csr_matrix(sol.jac), sigma2)
@@ -297,5 +317,3 @@ def _subset(tracks: TrackSet, keep: NDArray[np.bool_]) -> TrackSet:
                     tracks.pivot[keep], tracks.motion[keep], tracks.focal)
 
 
-__all__ = ["RefinementConfig", "RefinementResult", "TrackSet", "build_track_set", "pose_covariance",
-           "refine", "transform_from_rt", "triangulate_tracks"]

@@ -90,7 +90,8 @@ def circle_cone(centre: FloatArray, axis: FloatArray, radius: float) -> FloatArr
     """
     n, c = unit(axis), np.asarray(centre, dtype=np.float64)
     h = float(n @ c)
-    return h * h * np.eye(3) - h * (np.outer(n, c) + np.outer(c, n)) + (c @ c - radius**2) * np.outer(n, n)
+    return (h * h * np.eye(3) - h * (np.outer(n, c) + np.outer(c, n))
+            + (c @ c - radius**2) * np.outer(n, n))
 
 
 def random_pose(rng: np.random.Generator, distance: float = 1.5) -> FloatArray:

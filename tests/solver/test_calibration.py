@@ -198,10 +198,6 @@ def test_solve_linear_rejects_shoulder_axes(T_true, rng):
         solve_linear(_shoulder_motions(T_true, rng))
 
 
-@pytest.mark.xfail(strict=True, raises=InsufficientMotionsError, reason=(
-    "solve_consensus skips every RANSAC sample whose solve raises UnobservablePoseError, then "
-    "reports 'no three of the N motions agree' as InsufficientMotionsError instead of the "
-    "documented UnobservablePoseError"))
 @pytest.mark.parametrize("scenario", ["shoulder-axes", "parallel-axes"])
 def test_solve_consensus_reports_unobservable_pose(T_true, rng, scenario):
     motions = (_shoulder_motions(T_true, rng) if scenario == "shoulder-axes"

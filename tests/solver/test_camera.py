@@ -63,11 +63,6 @@ def test_round_trip_with_mild_distortion(rng):
                                atol=ROUND_TRIP_TOL)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "normalized_from_pixels calls cv2.undistortPoints with its default 5 fixed-point iterations, "
-    "which do not converge at the image corners under strong barrel distortion (k1 = -0.3): the "
-    "round trip is off by 1.4e-4 (0.19 px); passing R = P = eye(3) and criteria "
-    "(COUNT | EPS, 100, 1e-14) converges to 2e-16"))
 def test_round_trip_with_strong_barrel_distortion_at_corners():
     camera = CameraIntrinsics(K=K.copy(), dist=STRONG_BARREL_DIST, width=WIDTH, height=HEIGHT)
     corners = np.array([[sx * CX / FX, sy * CY / FY] for sx in (-1, 1) for sy in (-1, 1)])
