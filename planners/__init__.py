@@ -1,0 +1,1 @@
+"""Collision-checked exploratory-motion planners (issue 4; not built yet)."""

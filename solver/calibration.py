@@ -81,8 +81,9 @@ def _translation(correspondences: Sequence[AxisCorrespondence], R: FloatArray,
 
 
 def solve_minimal(correspondences: Sequence[AxisCorrespondence]) -> FloatArray:
-    """T_camera_base (4, 4) from three or more motions: R by Procrustes on the axis pairs
-    (A^c = R a_b, solved by SVD with det = +1), then t by least squares on the coplanarity rows.
+    """T_camera_base (4, 4) from three or more motions by Procrustes, then t by least squares.
+
+    R maximizes sum A^c . R a_b (SVD, det = +1); t solves the coplanarity rows given R.
 
     Raises:
         InsufficientMotionsError: fewer than three motions.
@@ -104,8 +105,9 @@ def solve_minimal(correspondences: Sequence[AxisCorrespondence]) -> FloatArray:
 
 def solve_linear(correspondences: Sequence[AxisCorrespondence],
                  depths: FloatArray | None = None) -> FloatArray:
-    """T_camera_base (4, 4) by the paper's linear method (four or more motions; three go to
-    ``solve_minimal``).
+    """T_camera_base (4, 4) by the paper's linear method.
+
+    Needs four or more motions; three go to ``solve_minimal``.
 
     Args:
         correspondences: the motions' axis correspondences.

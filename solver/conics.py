@@ -141,7 +141,8 @@ def fit_ellipse_direct(uv: FloatArray) -> ConicFit:
     if positive.size == 0:
         return ConicFit(None, "no ellipse fits the trajectory (4AC - B^2 <= 0 for every solution)")
     a1 = eigvec[:, positive[np.argmin(np.abs(np.real(eigval[positive])))]]
-    Q = _normalized(_similarity(scale, centre).T @ conic_matrix(np.concatenate([a1, T @ a1])) @ _similarity(scale, centre))
+    S = _similarity(scale, centre)
+    Q = _normalized(S.T @ conic_matrix(np.concatenate([a1, T @ a1])) @ S)
     if reason := ellipse_reason(Q):
         return ConicFit(None, reason)
     return ConicFit(Q)

@@ -89,7 +89,7 @@ class DHChain:
         return T[:3, 2].copy(), T[:3, 3].copy()
 
     def clip(self, q: FloatArray) -> FloatArray:
-        """q clipped into the joint limits."""
+        """Q clipped into the joint limits."""
         return np.clip(q, self.lower, self.upper)
 
 

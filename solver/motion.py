@@ -176,7 +176,7 @@ def _track_rms(points: _Points, axis: FloatArray) -> FloatArray:
 
 
 def fibonacci_sphere(n: int) -> FloatArray:
-    """n nearly uniform unit vectors on the sphere: (n, 3)."""
+    """N nearly uniform unit vectors on the sphere: (n, 3)."""
     k = np.arange(n) + 0.5
     z = 1 - 2 * k / n
     r = np.sqrt(1 - z * z)
@@ -273,19 +273,19 @@ def estimate_motion_geometry(obs: MotionObservation, intrinsics: CameraIntrinsic
               if np.arccos(np.clip(refined[k] @ axis, -1, 1)) > config.branch_angle]
     ambiguity = (float(refined_ms[others[0]] / max(refined_ms[order[0]], 1e-300))
                  if others else np.inf)
+    line_rms = np.median([_line_rms(obs.tracks[s].pixels) for s in usable])
+    circle_rms = float(np.median(_track_rms(points, refined[order[0]]))) * focal
+    if line_rms <= config.line_ratio * circle_rms:
+        raise DegenerateMotionError(
+            f"the trajectories are lines, not ellipses: straight lines fit them to {line_rms:.2f} px, "
+            f"circles to {circle_rms:.2f} px (the camera lies near the plane of rotation)"
+        )
     if ambiguity < config.ambiguity_ratio:
         raise DegenerateMotionError(
             f"axis is ambiguous: another axis fits only {ambiguity:.2f}x worse than the best "
             f"(need {config.ambiguity_ratio}x)"
         )
 
-    line_rms = np.median([_line_rms(obs.tracks[s].pixels) for s in usable])
-    circle_rms = float(np.median(_track_rms(points, axis))) * focal
-    if line_rms <= config.line_ratio * circle_rms:
-        raise DegenerateMotionError(
-            f"the trajectories are lines, not ellipses: straight lines fit them to {line_rms:.2f} px, "
-            f"circles to {circle_rms:.2f} px (the camera lies near the plane of rotation)"
-        )
     grazing = float(np.median(np.abs(points.rays @ axis) / np.linalg.norm(points.rays, axis=1)))
     if grazing < config.min_view_angle:
         raise DegenerateMotionError(

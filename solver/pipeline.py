@@ -200,7 +200,8 @@ class Calibrator:
                 moving = [moving[k] for k in sorted(pick)]
             tracks = []
             for t in moving:
-                idx = np.unique(np.linspace(0, len(t) - 1, min(len(t), self.config.max_frames_per_track)).round().astype(int))
+                n_keep = min(len(t), self.config.max_frames_per_track)
+                idx = np.unique(np.linspace(0, len(t) - 1, n_keep).round().astype(int))
                 tracks.append((normalized_from_pixels(t.pixels[idx], self.intrinsics), t.delta[idx]))
             self._motions.append(_Motion(obs, axis, point, geometry, tracks))
         if update:

@@ -23,7 +23,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from solver.errors import InsufficientMotionsError, InvalidInputError
-from solver.frames import perturb, rotation_about_axis, skew, transform_from_rt
+from solver.frames import perturb, rotation_about_axis, skew
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -252,7 +252,7 @@ def pose_covariance(jac: sp.csr_matrix, sigma2: float) -> FloatArray:
     Jp = jac[:, :6].toarray()
     Jx = jac[:, 6:].tocsc()
     U = Jp.T @ Jp
-    W = np.asarray((Jx.T @ Jp)).T  # (6, 3T)
+    W = np.asarray(Jx.T @ Jp).T  # (6, 3T)
     V = (Jx.T @ Jx).tocsr()
     T = Jx.shape[1] // 3
     idx = np.arange(3 * T).reshape(T, 3)

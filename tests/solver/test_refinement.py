@@ -9,7 +9,6 @@ import pytest
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
-import solver.refinement as refinement
 from solver.errors import InsufficientMotionsError, InvalidInputError
 from solver.frames import perturb, pose_difference, pose_errors
 from solver.refinement import (

@@ -1,0 +1,181 @@
+"""End-to-end tests of the Calibrator and the per-motion estimation on synthetic Panda scenes."""
+
+import re
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from solver import (
+    PANDA,
+    CalibrationState,
+    Calibrator,
+    CameraIntrinsics,
+    ConvergenceConfig,
+    ConvergenceMonitor,
+    DegenerateMotionError,
+    InvalidInputError,
+    KeypointTrack,
+    MotionObservation,
+    SyntheticConfig,
+    SyntheticScene,
+    d415_intrinsics,
+    estimate_motion_geometry,
+    pose_difference,
+    pose_errors,
+    sample_camera_pose,
+)
+
+#: Noise-free recovery at the end of an episode (the issue's bound).
+EXACT_ROT, EXACT_TRANS = 1e-6, 1e-6
+#: With 0.5 px noise and 10% bad tracks, 12 motions give ~0.5 mrad / ~0.5 mm (bench_solver);
+#: these bounds are 4-6x that, and far below the paper's 25-motion 0.0042 rad / 6.5 mm.
+NOISY_ROT, NOISY_TRANS = 3e-3, 3e-3
+#: chi^2_6 quantile 0.999: an honest covariance puts a single run inside it almost always.
+CHI2_6_999 = 22.46
+
+K = d415_intrinsics()
+
+
+def _episode(seed, n, config):
+    rng = np.random.default_rng(seed)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, config, rng)
+    cal = Calibrator(K, PANDA.axis_and_point)
+    for _ in range(n):
+        cal.add_motion(scene.random_motion(rng).observation)
+    return cal, T
+
+
+@pytest.fixture(scope="module")
+def exact_episode():
+    return _episode(1, 8, SyntheticConfig(noise_px=0.0, outlier_fraction=0.0, tracks_per_motion=20))
+
+
+def test_noise_free_episode_recovers_pose_exactly(exact_episode):
+    cal, T = exact_episode
+    assert cal.state.stage == "refined"
+    rot, trans = pose_errors(cal.state.T_camera_base, T)
+    assert rot < EXACT_ROT and trans < EXACT_TRANS
+    lin_rot, lin_trans = pose_errors(cal.state.T_linear, T)
+    assert lin_rot < EXACT_ROT and lin_trans < EXACT_TRANS
+
+
+def test_noisy_episode_is_accurate_and_its_covariance_honest():
+    cal, T = _episode(2, 12, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=30))
+    s = cal.state
+    assert s.stage == "refined"
+    rot, trans = pose_errors(s.T_camera_base, T)
+    assert rot < NOISY_ROT and trans < NOISY_TRANS
+    xi = pose_difference(s.T_camera_base, T)
+    assert xi @ np.linalg.solve(s.covariance, xi) < CHI2_6_999
+    assert s.std.shape == (6,) and np.all(s.std > 0)
+    assert 0.3 < s.rms_px < 1.0  # ~ sqrt(2) * 0.5 px / sqrt(2) per coordinate, plus kept outliers
+
+
+def test_same_input_gives_identical_estimates():
+    a, _ = _episode(3, 5, SyntheticConfig(tracks_per_motion=15))
+    b, _ = _episode(3, 5, SyntheticConfig(tracks_per_motion=15))
+    np.testing.assert_array_equal(a.state.T_camera_base, b.state.T_camera_base)
+
+
+def test_too_few_motions_give_no_pose():
+    cal, _ = _episode(4, 2, SyntheticConfig(tracks_per_motion=15))
+    assert cal.state.T_camera_base is None and cal.state.stage == "none"
+    assert "needs 3" in cal.state.message and not cal.state.converged
+
+
+def test_shoulder_joints_alone_never_give_a_pose():
+    """Joints 1-3 of the Panda meet at the shoulder: depth is free, so no pose may be reported."""
+    rng = np.random.default_rng(5)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.0, outlier_fraction=0.0,
+                                                        tracks_per_motion=20), rng)
+    cal = Calibrator(K, PANDA.axis_and_point)
+    for _ in range(8):
+        cal.add_motion(scene.random_motion(rng, joints=(0, 1, 2)).observation)
+    assert cal.state.T_camera_base is None
+    assert re.search(r"not fixed|cannot fix|do not fix", cal.state.message)
+    assert not cal.state.converged
+
+
+def test_motion_where_nothing_moved_is_rejected_with_reason(exact_episode):
+    cal, _ = exact_episode
+    still = MotionObservation(np.zeros(7), 3, tuple(
+        KeypointTrack(np.full((20, 2), 500.0) + k, np.linspace(0, 0.5, 20)) for k in range(10)))
+    report = cal.add_motion(still)
+    assert not report.accepted and "nothing moved" in report.reason
+    assert cal.state.n_rejected >= 1
+
+
+def test_nan_track_is_refused_at_the_boundary():
+    with pytest.raises(InvalidInputError, match="NaN"):
+        KeypointTrack(np.array([[1.0, np.nan]] * 6), np.zeros(6))
+
+
+def test_bad_kinematics_output_is_refused():
+    cal = Calibrator(K, lambda q, j: (np.array([np.nan, 0, 1.0]), np.zeros(3)))
+    obs = MotionObservation(np.zeros(7), 0, ())
+    with pytest.raises(InvalidInputError, match="invalid axis"):
+        cal.add_motion(obs)
+
+
+def _circle_tracks(axis_point, axis_dir, points, deltas, intrinsics: CameraIntrinsics):
+    """Tracks of camera-frame points turned about a camera-frame axis, projected with a pinhole."""
+    tracks = []
+    for p in points:
+        rot = Rotation.from_rotvec(np.outer(deltas, axis_dir)).as_matrix()
+        pc = np.einsum("kij,j->ki", rot, p - axis_point) + axis_point
+        uv = pc[:, :2] / pc[:, 2:] * intrinsics.focal + intrinsics.K[:2, 2]
+        tracks.append(KeypointTrack(uv, deltas))
+    return tuple(tracks)
+
+
+def test_single_trajectory_motion_is_degenerate():
+    deltas = np.linspace(0, 1.0, 30)
+    tracks = _circle_tracks(np.array([0, 0, 1.5]), np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8]),
+                            [np.array([0.2, 0.1, 1.4])], deltas, K)
+    with pytest.raises(DegenerateMotionError, match="only 1 of 1 trajectories moved"):
+        estimate_motion_geometry(MotionObservation(np.zeros(7), 0, tracks), K)
+
+
+def test_camera_in_the_plane_of_rotation_gives_lines():
+    """Axis along camera y through (0, 0, 2): every circle lies in a plane y = c; with c = 0 the
+    camera centre is in the plane and every trajectory is a straight line."""
+    rng = np.random.default_rng(6)
+    pts = [np.array([x, 0.0, 2.0 + z]) for x, z in rng.uniform(-0.3, 0.3, (12, 2))]
+    tracks = _circle_tracks(np.array([0, 0, 2.0]), np.array([0, 1.0, 0]), pts, np.linspace(0, 1.0, 30), K)
+    with pytest.raises(DegenerateMotionError, match="lines, not ellipses"):
+        estimate_motion_geometry(MotionObservation(np.zeros(7), 0, tracks), K)
+
+
+def test_axis_through_the_camera_centre_has_no_reference_plane():
+    rng = np.random.default_rng(7)
+    axis = np.array([0.1, -0.05, 1.0]) / np.linalg.norm([0.1, -0.05, 1.0])
+    pts = [axis * d + rng.normal(0, 0.15, 3) for d in rng.uniform(1.5, 2.0, 12)]
+    tracks = _circle_tracks(np.zeros(3), axis, pts, np.linspace(0, 1.2, 30), K)
+    with pytest.raises(DegenerateMotionError, match="camera centre"):
+        estimate_motion_geometry(MotionObservation(np.zeros(7), 0, tracks), K)
+
+
+def test_convergence_monitor_window_and_range():
+    mon = ConvergenceMonitor(ConvergenceConfig(window=3, max_rotation_range=1e-3, max_translation_range=1e-3))
+    T = np.eye(4)
+    mon.push(T)
+    mon.push(T)
+    assert mon.gamma is None and not mon.converged
+    mon.push(T)
+    assert mon.converged and np.all(mon.gamma == 0)
+    jumped = T.copy()
+    jumped[0, 3] = 2e-3
+    mon.push(jumped)
+    assert not mon.converged and mon.gamma[3] == pytest.approx(2e-3)
+
+
+def test_convergence_config_is_validated():
+    with pytest.raises(InvalidInputError, match="window"):
+        ConvergenceConfig(window=1)
+
+
+def test_state_type(exact_episode):
+    assert isinstance(exact_episode[0].state, CalibrationState)
