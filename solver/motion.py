@@ -70,7 +70,7 @@ class MotionConfig:
         line_inlier_angle: rad; RANSAC threshold of the reference line (offset / distance).
     """
 
-    conic_fit: Literal["independent", "shared"] = "shared"
+    conic_fit: Literal["independent", "shared"] = "independent"
     min_pixel_motion: float = 3.0
     min_delta_span: float = 0.05
     min_tracks: int = 4
