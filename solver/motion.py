@@ -23,7 +23,7 @@ from solver.camera import normalized_from_pixels, rays_from_normalized
 from solver.circle_normals import axis_candidates
 from solver.conics import fit_conics_independent, fit_conics_shared
 from solver.errors import DegenerateMotionError, DegenerateTrajectoryError, InvalidInputError
-from solver.observations import CameraIntrinsics, MotionObservation
+from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
 from solver.reference_lines import (
     PhaseCircles,
     candidate_score,
@@ -195,6 +195,12 @@ def _trimmed_ms(track_rms: FloatArray, keep_fraction: float = 0.75) -> float:
     return float(np.mean(sq[: max(1, int(np.ceil(keep_fraction * sq.size)))]))
 
 
+def track_moved(track: KeypointTrack, config: MotionConfig) -> bool:
+    """True when a track moved at least ``min_pixel_motion`` px over ``min_delta_span`` rad."""
+    return (len(track) >= 2 and np.max(np.ptp(track.pixels, axis=0)) >= config.min_pixel_motion
+            and np.ptp(track.delta) >= config.min_delta_span)
+
+
 def estimate_motion_geometry(obs: MotionObservation, intrinsics: CameraIntrinsics,
                              config: MotionConfig | None = None,
                              rng: np.random.Generator | None = None) -> MotionGeometry:
@@ -221,22 +227,20 @@ def estimate_motion_geometry(obs: MotionObservation, intrinsics: CameraIntrinsic
     for track in obs.tracks:
         rays.append(rays_from_normalized(normalized_from_pixels(track.pixels, intrinsics)))
         deltas.append(track.delta)
-        if (len(track) >= 2 and np.max(np.ptp(track.pixels, axis=0)) >= config.min_pixel_motion
-                and np.ptp(track.delta) >= config.min_delta_span):
+        if track_moved(track, config):
             usable.append(len(rays) - 1)
     if len(usable) < config.min_tracks:
         raise DegenerateMotionError(
             f"only {len(usable)} of {L} trajectories moved at least {config.min_pixel_motion} px over "
             f"{config.min_delta_span} rad (need {config.min_tracks}): nothing moved in view"
         )
-    curved = usable
-    uv = [rays[s][:, :2] for s in curved]
+    uv = [rays[s][:, :2] for s in usable]
     try:
         fits = fit_conics_shared(uv) if config.conic_fit == "shared" else fit_conics_independent(uv)
     except DegenerateTrajectoryError:
         fits = []
     candidates = [np.zeros((0, 3))]
-    for fit, s in zip(fits, curved, strict=False):
+    for fit, s in zip(fits, usable, strict=False):
         if fit.ok:
             try:
                 candidates.append(axis_candidates(fit.matrix, rays[s], deltas[s]))

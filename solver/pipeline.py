@@ -28,7 +28,7 @@ from solver.errors import (
     UnobservablePoseError,
 )
 from solver.kinematics import AxisFunction
-from solver.motion import MotionConfig, MotionGeometry, estimate_motion_geometry
+from solver.motion import MotionConfig, MotionGeometry, estimate_motion_geometry, track_moved
 from solver.observations import CameraIntrinsics, MotionObservation
 from solver.refinement import RefinementConfig, RefinementResult, build_track_set, refine
 
@@ -181,9 +181,7 @@ class Calibrator:
             )
         mcfg = self.config.motion
         moving = [t for t in obs.tracks
-                  if len(t) >= self.config.refinement.min_track_frames
-                  and np.max(np.ptp(t.pixels, axis=0)) >= mcfg.min_pixel_motion
-                  and np.ptp(t.delta) >= mcfg.min_delta_span]
+                  if len(t) >= self.config.refinement.min_track_frames and track_moved(t, mcfg)]
         if len(moving) < mcfg.min_tracks:
             report.reason = (f"nothing moved: {len(moving)} of {len(obs.tracks)} tracks moved "
                              f"{mcfg.min_pixel_motion} px over {mcfg.min_delta_span} rad "
