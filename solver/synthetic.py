@@ -35,9 +35,9 @@ def look_at(eye: FloatArray, target: FloatArray, roll: float = 0.0) -> FloatArra
     """
     z = np.asarray(target, float) - np.asarray(eye, float)
     z /= np.linalg.norm(z)
-    x = np.cross(z, np.array([0.0, 0.0, -1.0]))
+    x = np.cross(np.array([0.0, 0.0, -1.0]), z)  # x = y x z with y as close to "down" as z allows
     if np.linalg.norm(x) < 1e-6:
-        x = np.cross(z, np.array([0.0, 1.0, 0.0]))
+        x = np.cross(np.array([0.0, 1.0, 0.0]), z)
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     c, s = np.cos(roll), np.sin(roll)
