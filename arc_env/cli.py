@@ -1,9 +1,10 @@
 """The ``arc-calib`` command.
 
-``arc-calib demo --synthetic`` runs one calibration episode on a synthetic Franka Panda (the Panda's
-DH kinematics, keypoints on its links, a 1920x1080 D415-like camera at a random pose, 0.5 px noise
-and 10% bad tracks) and prints, motion by motion, what the calibrator made of it. The MuJoCo
-episode with rendered pixels replaces it as the default once the environment lands.
+``arc-calib demo`` runs one calibration episode in the MuJoCo scene (default: the Franka Panda,
+1920x1080 D415-like camera at a random pose) with random collision-free motions, rendered pixels
+and optical-flow tracking, and prints motion by motion what the calibrator made of it.
+``arc-calib demo --synthetic`` does the same on synthetic keypoints (the Panda's DH kinematics,
+0.5 px noise, 10% bad tracks) without rendering: the solver alone.
 """
 
 from __future__ import annotations
@@ -26,11 +27,7 @@ from solver import (
 )
 
 
-def _demo(args: argparse.Namespace) -> int:
-    if not args.synthetic:
-        print("arc-calib demo: only the synthetic scene exists so far; run `arc-calib demo --synthetic`",
-              file=sys.stderr)
-        return 2
+def _demo_synthetic(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(args.seed)
     T_true = sample_camera_pose(rng)
     intrinsics = d415_intrinsics()
@@ -89,15 +86,30 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="arc-calib", description="Markerless camera-to-robot calibration.")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="run one calibration episode")
-    demo.add_argument("--synthetic", action="store_true", help="synthetic Panda and camera (no rendering)")
+    demo.add_argument("--synthetic", action="store_true",
+                      help="synthetic Panda kinematics and keypoints, no rendering (solver only)")
     demo.add_argument("--motions", type=int, default=25, help="motion budget (default 25)")
     demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    demo.add_argument("--noise", type=float, default=0.5, help="keypoint noise, px (default 0.5)")
-    demo.add_argument("--outliers", type=float, default=0.1, help="fraction of bad tracks (default 0.1)")
+    demo.add_argument("--robot", help="robot MJCF or URDF file (default: the gymnasium-robotics Panda)")
+    demo.add_argument("--base-body", help="the robot's base body (required with --robot)")
+    demo.add_argument("--width", type=int, default=1920, help="image width, px (default 1920)")
+    demo.add_argument("--height", type=int, default=1080, help="image height, px (default 1080)")
+    demo.add_argument("--oracle", action="store_true",
+                      help="projected mesh points instead of rendering and tracking (simulation floor)")
+    demo.add_argument("--overlay", metavar="PATH",
+                      help="write a PNG of the robot mask rendered with the estimate over a real frame, "
+                           "with the IoU against the true mask")
+    demo.add_argument("--noise", type=float, default=0.5,
+                      help="keypoint noise, px (--synthetic and --oracle; default 0.5)")
+    demo.add_argument("--outliers", type=float, default=0.1, help="fraction of bad tracks (--synthetic; default 0.1)")
     demo.add_argument("--stop-when-converged", action="store_true", help="stop at convergence")
     args = parser.parse_args(argv)
     try:
-        return _demo(args)
+        if args.synthetic:
+            return _demo_synthetic(args)
+        from arc_env.demo import run_demo  # imports MuJoCo: only when a scene is wanted
+
+        return run_demo(args)
     except ArcCalibError as exc:
         print(f"arc-calib: {exc}", file=sys.stderr)
         return 1

@@ -1,0 +1,424 @@
+"""``ArcCalib-v0``: a simulated robot calibrates a simulated camera from rendered pixels."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from numpy.typing import NDArray
+from planners.collision import CollisionChecker
+from scipy.spatial.transform import Rotation
+
+from arc_env.scene import Scene, SceneConfig
+from arc_env.tracking import TrackerConfig, track_keypoints
+from solver.camera import pixels_from_camera_points
+from solver.errors import ArcCalibError, InvalidInputError
+from solver.frames import check_transform, pose_errors
+from solver.observations import KeypointTrack, MotionObservation
+from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig
+from solver.synthetic import sample_camera_pose
+
+FloatArray = NDArray[np.float64]
+
+#: The paper's reported accuracy (rad, m): the reward's unit of error.
+PAPER_ROTATION_RAD = 0.0042
+PAPER_TRANSLATION_M = 0.0065
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Settings of ``ArcCalibEnv`` (see its docstring for what they do to an episode).
+
+    Attributes:
+        scene: the robot, camera resolution and rendering.
+        max_motions: executed motions after which the episode is truncated.
+        max_refusals: refused actions after which the episode is truncated.
+        min_delta: rad; smallest |Delta| accepted.
+        max_delta: rad; largest |Delta| (the action space's bound).
+        joint_speed: rad/s of the sweeping joint; with ``fps`` it sets the frames per motion.
+        fps: camera frame rate, Hz.
+        frames_per_motion: fixed number of frames per sweep (None: from joint_speed and fps).
+        collision_step_m: m; a sweep is checked at steps that move no point by more than this.
+        camera_target: (3,) m, base frame: where sampled cameras look.
+        camera_distance: (min, max) m from the target for sampled cameras.
+        camera_max_roll: rad, roll about the optical axis for sampled cameras.
+        oracle_keypoints: replace rendering and tracking by projected mesh points (simulation
+            floor: separates tracking error from geometry error).
+        oracle_points: keypoints per motion in oracle mode.
+        oracle_noise_px: standard deviation of the oracle's pixel noise.
+        step_cost: reward charged per executed motion.
+        refusal_penalty: reward of a refused action.
+        calibrator: solver settings.
+        tracker: tracking settings.
+    """
+
+    scene: SceneConfig = field(default_factory=SceneConfig)
+    max_motions: int = 25
+    max_refusals: int = 200
+    min_delta: float = 0.2
+    max_delta: float = 1.5
+    joint_speed: float = 1.0
+    fps: float = 30.0
+    frames_per_motion: int | None = None
+    collision_step_m: float = 0.005
+    camera_target: tuple[float, float, float] = (0.3, 0.0, 0.45)
+    camera_distance: tuple[float, float] = (1.0, 2.5)
+    camera_max_roll: float = 0.3
+    oracle_keypoints: bool = False
+    oracle_points: int = 80
+    oracle_noise_px: float = 0.5
+    step_cost: float = 0.02
+    refusal_penalty: float = 0.1
+    calibrator: CalibratorConfig = field(default_factory=CalibratorConfig)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+
+    def __post_init__(self) -> None:
+        if self.max_motions < 1 or self.max_refusals < 1:
+            raise InvalidInputError("max_motions and max_refusals must be >= 1")
+        if not 0 < self.min_delta < self.max_delta:
+            raise InvalidInputError(f"need 0 < min_delta < max_delta, got {self.min_delta}, {self.max_delta}")
+        if self.joint_speed <= 0 or self.fps <= 0:
+            raise InvalidInputError("joint_speed and fps must be > 0")
+        if self.frames_per_motion is not None and self.frames_per_motion < 3:
+            raise InvalidInputError("frames_per_motion must be >= 3")
+        if not 0 < self.camera_distance[0] <= self.camera_distance[1]:
+            raise InvalidInputError("camera_distance must be (min, max) with 0 < min <= max")
+
+
+class ArcCalibEnv(gym.Env):
+    """Camera-to-robot calibration by exploratory motions, as a Gymnasium environment.
+
+    ## Description
+    A robot (default: the Franka Panda of gymnasium-robotics) stands on a floor; a 1920x1080
+    camera with D415-like intrinsics (fx = fy = 1380 px) looks at it from an unknown pose. Each
+    step the agent chooses an exploratory motion: a start configuration Q, a joint J and a turn
+    Delta. The environment checks it (joint limits, |Delta|, collisions over the whole sweep),
+    moves the arm to Q, turns joint J by Delta while rendering frames at ``fps`` (at
+    ``joint_speed``), tracks corners with OpenCV (Shi-Tomasi + pyramidal Lucas-Kanade with a
+    forward-backward check, in the pixels that move) and hands the tracks, with the joint offset
+    delta of every frame, to ARC-Calib's solver. The observation is the calibration state: the
+    current estimate of ``T_camera_base`` (``p_camera = T_camera_base @ p_base``, OpenCV optical
+    frame) and how settled and certain it is. No ground truth reaches the solver; it appears only
+    in ``info`` and the reward.
+
+    ## Action Space
+    ``Dict``:
+
+    | key   | space                                   | meaning                                  |
+    |-------|-----------------------------------------|------------------------------------------|
+    | Q     | Box(lower, upper, (n_joints,), float64) | start configuration, rad (joint limits)  |
+    | J     | Discrete(n_joints)                      | the joint that turns (0-based)           |
+    | delta | Box(-max_delta, max_delta, (1,), f64)   | the turn, rad; |delta| >= min_delta      |
+
+    An action is refused (the robot does not move, ``info["refused"]`` says why, the refusal is
+    counted) when Q is outside the limits or not finite, Q[J] + delta leaves the limits, |delta|
+    < min_delta, or the arm collides with itself, the floor, the camera mount or an obstacle at Q
+    or anywhere along the sweep.
+
+    ## Observation Space
+    ``Dict``:
+
+    | key          | space                         | meaning                                         |
+    |--------------|-------------------------------|-------------------------------------------------|
+    | translation  | Box(-inf, inf, (3,), float64) | estimated t of T_camera_base, m (0 if none)     |
+    | rotation     | Box(-pi, pi, (3,), float64)   | estimated R of T_camera_base, rotation vector   |
+    | gamma        | Box(-1, inf, (6,), float64)   | range of (rotvec rad, t m) over the monitor's   |
+    |              |                               | window (§V-D); -1 until the window is full      |
+    | std          | Box(-1, inf, (6,), float64)   | 1-sigma of (omega rad, tau m) from the bundle   |
+    |              |                               | adjustment; -1 when unavailable                 |
+    | has_estimate | Discrete(2)                   | 1 when translation/rotation hold an estimate    |
+    | n_accepted   | Discrete(max_motions + 1)     | motions informing the estimate                  |
+    | n_rejected   | Discrete(max_motions + 1)     | executed motions pruned (reasons in info)       |
+    | converged    | Discrete(2)                   | convergence fired and std is within it          |
+
+    ## Rewards
+    With e = log10(1 + rot_err / 0.0042 + trans_err / 0.0065) (errors in units of the paper's
+    accuracy, true errors of the current estimate; e = log10(101) without an estimate), an
+    executed motion earns e_before - e_after - ``step_cost``; a refused action earns
+    -``refusal_penalty``. The sum over an episode is e_0 - e_final minus the costs. The reward uses
+    ground truth: simulation only.
+
+    ## Starting State
+    ``reset(seed)`` samples the camera pose: ``camera_distance`` metres from ``camera_target``,
+    at a random azimuth and an elevation between 3 and 50 degrees, looking at the target with up to
+    ``camera_max_roll`` of roll (or takes ``options["camera_pose"]``, a 4x4 ``T_camera_base``).
+    The arm starts at its home configuration; the calibrator is empty.
+
+    ## Episode End
+    ``terminated`` when the calibration converges (§V-D: the window's range is under the
+    thresholds and so is the 1-sigma uncertainty). ``truncated`` after ``max_motions`` executed
+    motions or ``max_refusals`` refused actions.
+
+    ## Info
+    Every step: ``rot_error_rad``, ``trans_error_m`` (NaN without an estimate), ``T_camera_base``
+    (estimate or None), ``stage``, ``refused`` ("" or why), ``n_refused``, ``n_motions``; after an
+    executed motion also ``motion`` (joint, tracks, accepted, reason), ``n_frames``,
+    ``transit_rad`` (joint-space distance to Q) and ``seconds`` (render, tracking, solver).
+
+    ## Arguments
+    ``gymnasium.make("ArcCalib-v0", config=EnvConfig(...), render_mode="rgb_array")``; see
+    ``EnvConfig`` for every setting (robot file, resolution, oracle keypoints, budgets).
+
+    ## Version History
+    * v0: first version.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+
+    def __init__(self, config: EnvConfig | None = None, render_mode: str | None = None):
+        self.config = config or EnvConfig()
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise InvalidInputError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.render_mode = render_mode
+        self.scene = Scene(self.config.scene)
+        self.intrinsics = self.scene.intrinsics
+        n = self.scene.n_joints
+        c = self.config
+        self.action_space = spaces.Dict({
+            "Q": spaces.Box(self.scene.lower, self.scene.upper, (n,), np.float64),
+            "J": spaces.Discrete(n),
+            "delta": spaces.Box(-c.max_delta, c.max_delta, (1,), np.float64),
+        })
+        self.observation_space = spaces.Dict({
+            "translation": spaces.Box(-np.inf, np.inf, (3,), np.float64),
+            "rotation": spaces.Box(-np.pi, np.pi, (3,), np.float64),
+            "gamma": spaces.Box(-1.0, np.inf, (6,), np.float64),
+            "std": spaces.Box(-1.0, np.inf, (6,), np.float64),
+            "has_estimate": spaces.Discrete(2),
+            "n_accepted": spaces.Discrete(c.max_motions + 1),
+            "n_rejected": spaces.Discrete(c.max_motions + 1),
+            "converged": spaces.Discrete(2),
+        })
+        self.T_true: FloatArray = np.eye(4)
+        self.checker: CollisionChecker | None = None
+        self.calibrator: Calibrator | None = None
+        self.n_motions = 0
+        self.n_refused = 0
+        self._error_score = self._score(None)
+        self._last_frame: NDArray[np.uint8] | None = None
+
+    # -- gymnasium API -------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
+              ) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Start an episode: a camera pose (sampled or ``options["camera_pose"]``), the arm at home."""
+        super().reset(seed=seed)
+        c = self.config
+        options = options or {}
+        if options.get("camera_pose") is not None:
+            T = check_transform(options["camera_pose"], "options['camera_pose']")
+        else:
+            T = sample_camera_pose(self.np_random, target=np.asarray(c.camera_target),
+                                   distance=c.camera_distance, max_roll=c.camera_max_roll)
+        self.T_true = T
+        self.scene.set_camera(T)
+        self.scene.set_q(self.scene.home)
+        self.checker = CollisionChecker(self.scene.model, self.scene.arm_joints,
+                                        qpos_ref=self.scene.data.qpos.copy())
+        solver_seed = int(self.np_random.integers(2**31 - 1))
+        self.calibrator = Calibrator(self.intrinsics, self.scene.axis_and_point,
+                                     replace(c.calibrator, seed=solver_seed))
+        self.n_motions = 0
+        self.n_refused = 0
+        self._error_score = self._score(None)
+        self._last_frame = None
+        return self._observation(), self._info("")
+
+    def step(self, action: dict[str, Any]) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
+        """Execute one exploratory motion (or refuse it); see the class docstring."""
+        if self.calibrator is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        c = self.config
+        try:
+            q, joint, delta = self._parse(action)
+            reason = self.validate(q, joint, delta)
+        except InvalidInputError as exc:
+            reason = str(exc)
+        if reason:
+            self.n_refused += 1
+            info = self._info(reason)
+            return (self._observation(), -c.refusal_penalty, False, self.n_refused >= c.max_refusals, info)
+
+        transit = float(np.linalg.norm(q - self.scene.q))
+        obs_motion, n_frames, seconds = self._execute(q, joint, delta)
+        t0 = time.perf_counter()
+        try:
+            report = self.calibrator.add_motion(obs_motion)
+            motion_info = {"joint": joint, "n_tracks": len(obs_motion.tracks), "accepted": report.accepted,
+                           "reason": report.reason, "stage_one": report.stage_one}
+        except ArcCalibError as exc:  # e.g. kinematics rejected the configuration
+            motion_info = {"joint": joint, "n_tracks": len(obs_motion.tracks), "accepted": False,
+                           "reason": f"solver error: {exc}", "stage_one": ""}
+        seconds["solver"] = time.perf_counter() - t0
+        self.n_motions += 1
+        state = self.calibrator.state
+        score = self._score(state)
+        reward = self._error_score - score - c.step_cost
+        self._error_score = score
+        info = self._info("")
+        info.update(motion=motion_info, n_frames=n_frames, transit_rad=transit, seconds=seconds)
+        terminated = bool(state.converged)
+        truncated = self.n_motions >= c.max_motions and not terminated
+        return self._observation(), float(reward), terminated, truncated, info
+
+    def render(self) -> NDArray[np.uint8] | None:
+        """The camera's current image, (H, W, 3) uint8 (``render_mode="rgb_array"``)."""
+        if self.render_mode != "rgb_array":
+            return None
+        return self.scene.render()
+
+    def close(self) -> None:
+        """Release the renderer."""
+        self.scene.close()
+
+    # -- motions -------------------------------------------------------------------------------
+    def _parse(self, action: dict[str, Any]) -> tuple[FloatArray, int, float]:
+        if not isinstance(action, dict) or not {"Q", "J", "delta"} <= set(action):
+            raise InvalidInputError("action must be a dict with keys 'Q', 'J', 'delta'")
+        q = self.scene.check_q(action["Q"])
+        joint_arr = np.asarray(action["J"])
+        if joint_arr.size != 1 or not np.issubdtype(joint_arr.dtype, np.integer):
+            raise InvalidInputError(f"J must be one integer, got {action['J']!r}")
+        delta_arr = np.asarray(action["delta"], dtype=np.float64).reshape(-1)
+        if delta_arr.size != 1 or not np.isfinite(delta_arr[0]):
+            raise InvalidInputError(f"delta must be one finite number, got {action['delta']!r}")
+        return q, int(joint_arr.reshape(-1)[0]), float(delta_arr[0])
+
+    def validate(self, q: FloatArray, joint: int, delta: float) -> str:
+        """Why the motion (q (n,) rad, joint, delta rad) would be refused, or "" if it is valid."""
+        s, c = self.scene, self.config
+        if not 0 <= joint < s.n_joints:
+            return f"joint {joint} is not in [0, {s.n_joints})"
+        out = np.nonzero((q < s.lower - 1e-9) | (q > s.upper + 1e-9))[0]
+        if out.size:
+            k = int(out[0])
+            return f"Q[{k}] = {q[k]:.3f} rad is outside the limits [{s.lower[k]:.3f}, {s.upper[k]:.3f}]"
+        if abs(delta) < c.min_delta:
+            return f"|delta| = {abs(delta):.3f} rad is below the minimum {c.min_delta} rad"
+        if abs(delta) > c.max_delta + 1e-9:
+            return f"|delta| = {abs(delta):.3f} rad is above the maximum {c.max_delta} rad"
+        end = q[joint] + delta
+        if not s.lower[joint] - 1e-9 <= end <= s.upper[joint] + 1e-9:
+            return (f"the sweep ends at {end:.3f} rad, outside joint {joint}'s limits "
+                    f"[{s.lower[joint]:.3f}, {s.upper[joint]:.3f}]")
+        assert self.checker is not None
+        hit, why = self.checker.in_collision(q)
+        if hit:
+            return f"start configuration in collision: {why}"
+        free, why = self.checker.sweep_free(q, joint, delta, c.collision_step_m)
+        if not free:
+            return f"sweep in collision: {why}"
+        return ""
+
+    def sweep_deltas(self, delta: float) -> FloatArray:
+        """The joint offsets of the rendered frames of a sweep by delta rad: (F,) rad, from 0 to delta."""
+        c = self.config
+        n = c.frames_per_motion or max(3, int(np.ceil(abs(delta) / c.joint_speed * c.fps)) + 1)
+        return np.linspace(0.0, delta, n)
+
+    def _execute(self, q: FloatArray, joint: int, delta: float) -> tuple[MotionObservation, int, dict[str, float]]:
+        deltas = self.sweep_deltas(delta)
+        seconds = {"render": 0.0, "tracking": 0.0}
+        if self.config.oracle_keypoints:
+            t0 = time.perf_counter()
+            tracks = self._oracle_tracks(q, joint, deltas)
+            seconds["tracking"] = time.perf_counter() - t0
+        else:
+            frames = []
+            t0 = time.perf_counter()
+            for d in deltas:
+                qk = q.copy()
+                qk[joint] += d
+                self.scene.set_q(qk)
+                frames.append(self.scene.render())
+            t1 = time.perf_counter()
+            result = track_keypoints(frames, deltas, self.config.tracker)
+            tracks = result.tracks
+            seconds["render"] = t1 - t0
+            seconds["tracking"] = time.perf_counter() - t1
+            self._last_frame = frames[-1]
+        q_end = q.copy()
+        q_end[joint] += delta
+        self.scene.set_q(q_end)
+        return MotionObservation(q_start=q, joint=joint, tracks=tracks), len(deltas), seconds
+
+    def _oracle_tracks(self, q: FloatArray, joint: int, deltas: FloatArray) -> list[KeypointTrack]:
+        """Mesh points of the moving links projected with the true camera, plus Gaussian noise.
+
+        Points are drawn from the vertices of the rendered geoms that the joint moves; occlusion is
+        ignored (the oracle is a floor for the geometry, not a renderer). A point is kept over the
+        frames where it is in front of the camera and inside the image.
+        """
+        c = self.config
+        body, local = self.scene.surface_points(joint)
+        if len(body) == 0:
+            return []
+        pick = self.np_random.choice(len(body), size=min(c.oracle_points, len(body)), replace=False)
+        body, local = body[pick], local[pick]
+        T = self.T_true
+        pix = np.empty((len(deltas), len(body), 2))
+        ok = np.empty((len(deltas), len(body)), dtype=bool)
+        for k, d in enumerate(deltas):
+            qk = q.copy()
+            qk[joint] += d
+            self.scene.set_q(qk)
+            pc = self.scene.points_base(body, local) @ T[:3, :3].T + T[:3, 3]
+            front = pc[:, 2] > 0.05
+            pc[~front, 2] = 1.0
+            uv = pixels_from_camera_points(pc, self.intrinsics)
+            ok[k] = front & (uv[:, 0] >= 0) & (uv[:, 0] <= self.intrinsics.width - 1) \
+                & (uv[:, 1] >= 0) & (uv[:, 1] <= self.intrinsics.height - 1)
+            pix[k] = uv + self.np_random.normal(0.0, c.oracle_noise_px, uv.shape)
+        tracks = []
+        for p in range(len(body)):
+            frames = np.nonzero(ok[:, p])[0]
+            if len(frames) >= 3:
+                tracks.append(KeypointTrack(pix[frames, p], deltas[frames]))
+        return tracks
+
+    # -- observation, reward, info -------------------------------------------------------------
+    @staticmethod
+    def _score_errors(rot: float, trans: float) -> float:
+        return float(np.log10(1.0 + rot / PAPER_ROTATION_RAD + trans / PAPER_TRANSLATION_M))
+
+    def _score(self, state: CalibrationState | None) -> float:
+        if state is None or state.T_camera_base is None:
+            return float(np.log10(101.0))
+        return self._score_errors(*pose_errors(state.T_camera_base, self.T_true))
+
+    def _observation(self) -> dict[str, Any]:
+        n_max = self.config.max_motions
+        obs: dict[str, Any] = {
+            "translation": np.zeros(3), "rotation": np.zeros(3), "gamma": -np.ones(6), "std": -np.ones(6),
+            "has_estimate": 0, "n_accepted": 0, "n_rejected": 0, "converged": 0,
+        }
+        if self.calibrator is None:
+            return obs
+        s = self.calibrator.state
+        if s.T_camera_base is not None:
+            obs["translation"] = s.T_camera_base[:3, 3].astype(np.float64).copy()
+            obs["rotation"] = Rotation.from_matrix(s.T_camera_base[:3, :3]).as_rotvec()
+            obs["has_estimate"] = 1
+        if s.gamma is not None:
+            obs["gamma"] = np.asarray(s.gamma, dtype=np.float64).copy()
+        if s.std is not None:
+            obs["std"] = np.asarray(s.std, dtype=np.float64).copy()
+        obs["n_accepted"] = min(int(s.n_accepted), n_max)
+        obs["n_rejected"] = min(int(s.n_rejected), n_max)
+        obs["converged"] = int(s.converged)
+        return obs
+
+    def _info(self, refused: str) -> dict[str, Any]:
+        s = self.calibrator.state if self.calibrator is not None else None
+        if s is not None and s.T_camera_base is not None:
+            rot, trans = pose_errors(s.T_camera_base, self.T_true)
+            T_est = s.T_camera_base.copy()
+        else:
+            rot, trans, T_est = float("nan"), float("nan"), None
+        return {"rot_error_rad": rot, "trans_error_m": trans, "T_camera_base": T_est,
+                "stage": s.stage if s is not None else "none", "refused": refused,
+                "n_refused": self.n_refused, "n_motions": self.n_motions,
+                "message": s.message if s is not None else ""}

@@ -1,0 +1,146 @@
+"""The scene: robots from files, kinematics read from MuJoCo, rendering and masks."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from arc_env.robots import arm_mjcf, arm_urdf, forward_axes, random_arm
+from arc_env.scene import RobotSource, Scene, SceneConfig
+from solver import PANDA, InvalidInputError, look_at, pixels_from_camera_points
+
+#: The gymnasium-robotics Panda writes some rotations as 1.57 instead of pi/2, so its kinematics
+#: differ from the published DH parameters by up to about this (rad for axes, m for points).
+PANDA_MODEL_TOL = 5e-3
+#: Its joint 6 is zero where the DH model's is pi/2 (its limits are shifted by the same amount).
+PANDA_JOINT6_OFFSET = np.pi / 2
+
+
+@pytest.fixture(scope="module")
+def panda():
+    scene = Scene(SceneConfig(width=640, height=360))
+    scene.set_camera(look_at(np.array([1.6, 0.7, 1.0]), np.array([0.3, 0.0, 0.45]), 0.2))
+    yield scene
+    scene.close()
+
+
+@pytest.fixture(scope="module", params=["mjcf", "urdf"])
+def arm(request, tmp_path_factory):
+    spec = random_arm(5)
+    path = tmp_path_factory.mktemp("arm") / ("arm.xml" if request.param == "mjcf" else "arm.urdf")
+    path.write_text(arm_mjcf(spec) if request.param == "mjcf" else arm_urdf(spec))
+    scene = Scene(SceneConfig(robot=RobotSource(str(path), "arm_base", home=()), width=480, height=270))
+    yield spec, scene
+    scene.close()
+
+
+def test_panda_loads_with_seven_arm_joints(panda):
+    assert panda.n_joints == 7
+    assert all(name.endswith(f"joint{i + 1}") for i, name in enumerate(panda.joint_names))
+    np.testing.assert_allclose(panda.upper[[0, 1]], [2.8973, 1.7628])
+
+
+def test_panda_kinematics_match_the_published_dh_parameters(panda):
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        q = rng.uniform(panda.lower, panda.upper)
+        for j in range(7):
+            axis, point = panda.axis_and_point(q, j)
+            axis_dh, point_dh = PANDA.axis_and_point(q + np.eye(7)[5] * PANDA_JOINT6_OFFSET, j)
+            assert np.linalg.norm(axis - axis_dh) < PANDA_MODEL_TOL
+            # points differ along the axis (any point on it is valid): compare the lines
+            off = point - point_dh
+            assert np.linalg.norm(off - off.dot(axis_dh) * axis_dh) < PANDA_MODEL_TOL
+
+
+def test_generated_arm_kinematics_match_independent_fk(arm):
+    spec, scene = arm
+    assert scene.n_joints == spec.n_joints
+    rng = np.random.default_rng(1)
+    for _ in range(10):
+        q = rng.uniform(scene.lower, scene.upper)
+        axes, points = forward_axes(spec, q)
+        for j in range(spec.n_joints):
+            axis, point = scene.axis_and_point(q, j)
+            np.testing.assert_allclose(axis, axes[j], atol=1e-9)
+            np.testing.assert_allclose(point, points[j], atol=1e-9)
+
+
+def test_projected_surface_points_fall_on_the_rendered_robot(panda):
+    T = panda.T_camera_base
+    mask = panda.robot_mask()
+    body, local = panda.surface_points(3)
+    pc = panda.points_base(body, local) @ T[:3, :3].T + T[:3, 3]
+    uv = np.round(pixels_from_camera_points(pc, panda.intrinsics)).astype(int)
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < 640) & (uv[:, 1] >= 0) & (uv[:, 1] < 360)
+    assert inside.mean() > 0.9
+    on_robot = mask[uv[inside, 1], uv[inside, 0]]
+    assert on_robot.mean() > 0.95  # misses only at the silhouette's rounded pixels
+
+
+def test_a_wrong_pose_gives_a_different_mask(panda):
+    true = panda.robot_mask()
+    T = panda.T_camera_base.copy()
+    T[0, 3] += 0.05
+    shifted = panda.robot_mask(T)
+    iou = np.logical_and(true, shifted).sum() / np.logical_or(true, shifted).sum()
+    assert 0.2 < iou < 0.9
+    np.testing.assert_array_equal(panda.robot_mask(), true)  # the true camera was restored
+
+
+def test_speckle_gives_the_tracker_corners_on_the_robot(panda):
+    grey = cv2.cvtColor(panda.render(), cv2.COLOR_RGB2GRAY)
+    mask = panda.robot_mask().astype(np.uint8)
+    plain = Scene(SceneConfig(width=640, height=360, speckle=False))
+    plain.set_camera(panda.T_camera_base)
+    grey_plain = cv2.cvtColor(plain.render(), cv2.COLOR_RGB2GRAY)
+    plain.close()
+    n = len(cv2.goodFeaturesToTrack(grey, 2000, 0.01, 3, mask=mask))
+    found_plain = cv2.goodFeaturesToTrack(grey_plain, 2000, 0.01, 3, mask=mask)
+    n_plain = 0 if found_plain is None else len(found_plain)
+    assert n > 150
+    assert n > 2 * n_plain
+
+
+def test_missing_robot_file_is_named(tmp_path):
+    path = tmp_path / "nope.urdf"
+    with pytest.raises(InvalidInputError, match="nope.urdf does not exist"):
+        Scene(SceneConfig(robot=RobotSource(str(path), "base")))
+
+
+def test_corrupt_robot_file_is_named(tmp_path):
+    path = tmp_path / "broken.xml"
+    path.write_text("<mujoco><worldbody><body name='b'><geom type='sphere'")
+    with pytest.raises(InvalidInputError, match="broken.xml could not be loaded"):
+        Scene(SceneConfig(robot=RobotSource(str(path), "b")))
+
+
+def test_unknown_base_body_lists_the_bodies(tmp_path):
+    path = tmp_path / "arm.xml"
+    path.write_text(arm_mjcf(random_arm(0)))
+    with pytest.raises(InvalidInputError, match="no body named 'base'.*arm_link1"):
+        Scene(SceneConfig(robot=RobotSource(str(path), "base")))
+
+
+def test_unknown_joint_lists_the_joints(tmp_path):
+    path = tmp_path / "arm.xml"
+    path.write_text(arm_mjcf(random_arm(0)))
+    with pytest.raises(InvalidInputError, match="no joint named 'elbow'.*arm_joint1"):
+        Scene(SceneConfig(robot=RobotSource(str(path), "arm_base", joints=("elbow",))))
+
+
+def test_bad_configurations_are_refused(panda):
+    with pytest.raises(InvalidInputError, match="shape"):
+        panda.axis_and_point(np.zeros(6), 0)
+    with pytest.raises(InvalidInputError, match="NaN"):
+        panda.axis_and_point(np.full(7, np.nan), 0)
+    with pytest.raises(InvalidInputError, match="joint must be"):
+        panda.axis_and_point(np.zeros(7), 7)
+
+
+def test_panda_assets_come_from_the_installed_package():
+    from arc_env.scene import panda_mjcf_dir
+
+    d = panda_mjcf_dir()
+    assert (d / "chain.xml").is_file() and Path(d, "meshes").is_dir()
