@@ -90,10 +90,11 @@ def _episode(env: ArcCalibEnv, args: argparse.Namespace) -> int:
             continue
         m = info["motion"]
         for k in seconds:
-            seconds[k] += info["seconds"].get(k, 0.0)
+            seconds[k] += env.last_seconds.get(k, 0.0)
         note = m["reason"] or (f"no axis (bundle adjustment only): {m['stage_one']}" if m["stage_one"] else "")
         note = note or (info["message"] if info["T_camera_base"] is None else "")
-        rot, trans = info["rot_error_rad"], info["trans_error_m"]
+        rot = np.nan if info["rot_error_rad"] is None else info["rot_error_rad"]
+        trans = np.nan if info["trans_error_m"] is None else info["trans_error_m"]
         print(f"{i + 1:>3} {m['joint'] + 1:>5} {float(action['delta'][0]):>6.2f} {info['n_frames']:>6} "
               f"{m['n_tracks']:>6} {'accepted' if m['accepted'] else 'rejected':>9} {info['stage']:>8} "
               f"{rot:>9.2e} {trans * 1e3:>7.2f} mm {time.perf_counter() - t0:>5.1f}  {note[:60]}"

@@ -10,11 +10,11 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
-from planners.collision import CollisionChecker
 from scipy.spatial.transform import Rotation
 
 from arc_env.scene import Scene, SceneConfig
 from arc_env.tracking import TrackerConfig, track_keypoints
+from planners.collision import CollisionChecker
 from solver.camera import pixels_from_camera_points
 from solver.errors import ArcCalibError, InvalidInputError
 from solver.frames import check_transform, pose_errors
@@ -51,6 +51,8 @@ class EnvConfig:
         oracle_points: keypoints per motion in oracle mode.
         oracle_noise_px: standard deviation of the oracle's pixel noise.
         step_cost: reward charged per executed motion.
+        terminate_on_convergence: end the episode (``terminated``) when the calibration converges;
+            off, episodes run to the motion budget (benchmarks measuring every checkpoint).
         refusal_penalty: reward of a refused action.
         calibrator: solver settings.
         tracker: tracking settings.
@@ -72,6 +74,7 @@ class EnvConfig:
     oracle_points: int = 80
     oracle_noise_px: float = 0.5
     step_cost: float = 0.02
+    terminate_on_convergence: bool = True
     refusal_penalty: float = 0.1
     calibrator: CalibratorConfig = field(default_factory=CalibratorConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
@@ -154,10 +157,11 @@ class ArcCalibEnv(gym.Env):
     motions or ``max_refusals`` refused actions.
 
     ## Info
-    Every step: ``rot_error_rad``, ``trans_error_m`` (NaN without an estimate), ``T_camera_base``
+    Every step: ``rot_error_rad``, ``trans_error_m`` (None without an estimate), ``T_camera_base``
     (estimate or None), ``stage``, ``refused`` ("" or why), ``n_refused``, ``n_motions``; after an
-    executed motion also ``motion`` (joint, tracks, accepted, reason), ``n_frames``,
-    ``transit_rad`` (joint-space distance to Q) and ``seconds`` (render, tracking, solver).
+    executed motion also ``motion`` (joint, tracks, accepted, reason), ``n_frames`` and
+    ``transit_rad`` (joint-space distance to Q). Wall times are in ``env.last_seconds`` (render,
+    tracking, solver), not in ``info``, which same-seed episodes reproduce exactly.
 
     ## Arguments
     ``gymnasium.make("ArcCalib-v0", config=EnvConfig(...), render_mode="rgb_array")``; see
@@ -200,6 +204,9 @@ class ArcCalibEnv(gym.Env):
         self.n_refused = 0
         self._error_score = self._score(None)
         self._last_frame: NDArray[np.uint8] | None = None
+        #: wall time of the last executed motion: {"render", "tracking", "solver"} seconds (kept out
+        #: of ``info`` so that same-seed episodes give identical infos).
+        self.last_seconds: dict[str, float] = {}
 
     # -- gymnasium API -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -259,8 +266,9 @@ class ArcCalibEnv(gym.Env):
         reward = self._error_score - score - c.step_cost
         self._error_score = score
         info = self._info("")
-        info.update(motion=motion_info, n_frames=n_frames, transit_rad=transit, seconds=seconds)
-        terminated = bool(state.converged)
+        info.update(motion=motion_info, n_frames=n_frames, transit_rad=transit)
+        self.last_seconds = seconds
+        terminated = bool(state.converged) and c.terminate_on_convergence
         truncated = self.n_motions >= c.max_motions and not terminated
         return self._observation(), float(reward), terminated, truncated, info
 
@@ -417,7 +425,7 @@ class ArcCalibEnv(gym.Env):
             rot, trans = pose_errors(s.T_camera_base, self.T_true)
             T_est = s.T_camera_base.copy()
         else:
-            rot, trans, T_est = float("nan"), float("nan"), None
+            rot, trans, T_est = None, None, None
         return {"rot_error_rad": rot, "trans_error_m": trans, "T_camera_base": T_est,
                 "stage": s.stage if s is not None else "none", "refused": refused,
                 "n_refused": self.n_refused, "n_motions": self.n_motions,

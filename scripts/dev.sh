@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up the project's virtual environment (.venv) on a fresh machine if needed, then run a job:
-#   bash scripts/dev.sh demo [args]   one calibration episode (arc-calib demo --synthetic [args])
+#   bash scripts/dev.sh demo [args]   one calibration episode in the MuJoCo scene (arc-calib demo [args])
 #   bash scripts/dev.sh test [args]   the test suite (pytest [args])
 #   bash scripts/dev.sh lint          ruff
 set -euo pipefail
@@ -8,6 +8,12 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 venv="$root/.venv"
 stamp="$venv/.installed-$(sha1sum pyproject.toml | cut -c1-12)"
+# Offscreen rendering needs an EGL (or OSMesa) library; Debian's Mesa provides one for CPUs.
+if ! ldconfig -p 2>/dev/null | grep -q -E 'libEGL\.so\.1|libOSMesa\.so'; then
+  echo "installing Mesa EGL for offscreen rendering (apt)" >&2
+  sudo_cmd=""; [ "$(id -u)" -ne 0 ] && sudo_cmd="sudo"
+  $sudo_cmd apt-get update -qq && $sudo_cmd apt-get install -y -qq libegl1 libegl-mesa0 libgl1-mesa-dri >/dev/null
+fi
 if [ ! -f "$stamp" ]; then
   python3 -m venv "$venv"
   "$venv/bin/python" -m pip install --quiet --upgrade pip
@@ -17,7 +23,7 @@ fi
 job="${1:-test}"
 shift || true
 case "$job" in
-  demo) exec "$venv/bin/arc-calib" demo --synthetic "$@" ;;
+  demo) exec "$venv/bin/arc-calib" demo "$@" ;;
   test) exec "$venv/bin/python" -m pytest -q "$@" ;;
   lint) exec "$venv/bin/ruff" check . ;;
   *) echo "usage: bash scripts/dev.sh {demo|test|lint} [args]" >&2; exit 2 ;;
