@@ -54,7 +54,10 @@ class EnvConfig:
         terminate_on_convergence: end the episode (``terminated``) when the calibration converges;
             off, episodes run to the motion budget (benchmarks measuring every checkpoint).
         refusal_penalty: reward of a refused action.
-        calibrator: solver settings.
+        calibrator: solver settings. The default gives the bundle adjustment at most 40 tracks
+            per motion and 15 frames per track (evenly spaced over the sweep): a fifth of what
+            the tracker delivers at 1080p, enough for the ellipses, and it keeps tracking + solving
+            within a frame period.
         tracker: tracking settings.
     """
 
@@ -76,7 +79,8 @@ class EnvConfig:
     step_cost: float = 0.02
     terminate_on_convergence: bool = True
     refusal_penalty: float = 0.1
-    calibrator: CalibratorConfig = field(default_factory=CalibratorConfig)
+    calibrator: CalibratorConfig = field(default_factory=lambda: CalibratorConfig(
+        max_tracks_per_motion=40, max_frames_per_track=15))
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
     def __post_init__(self) -> None:

@@ -43,6 +43,9 @@ class RefinementConfig:
         outlier_sigmas: see ``outlier_px``.
         max_nfev: function evaluations per pass at most.
         min_track_frames: tracks with fewer frames are not used.
+        robust_ftol: relative cost change that ends the robust pass. It only has to bring the
+            pose close enough to sort the tracks; the plain pass after it polishes (1e-9 made it
+            run to ``max_nfev`` on every update, for no measurable gain).
     """
 
     cauchy_scale_px: float = 1.0
@@ -50,6 +53,7 @@ class RefinementConfig:
     outlier_sigmas: float = 1.8
     max_nfev: int = 50
     min_track_frames: int = 4
+    robust_ftol: float = 1e-6
 
 
 @dataclass(frozen=True)
@@ -226,18 +230,20 @@ class RefinementResult:
 
 
 def _solve(tracks: TrackSet, T0: FloatArray, points: FloatArray, loss: str, f_scale: float,
-           max_nfev: int, lsmr_tol: float = 1e-12) -> tuple[FloatArray, FloatArray, _Problem, object]:
+           max_nfev: int, lsmr_tol: float = 1e-12, ftol: float = 1e-9
+           ) -> tuple[FloatArray, FloatArray, _Problem, object]:
     """One least-squares pass from pose T0 and base-frame points (T, 3); returns base points.
 
     ``lsmr_tol`` must be tight (1e-12) far from the optimum, where TRF otherwise stalls; the
-    final pass starts at the robust optimum and converges with a looser one.
+    final pass starts at the robust optimum and converges with a looser one. ``ftol`` is the
+    relative cost change that ends the pass.
     """
     problem = _Problem(tracks, T0)
     q0 = points @ T0[:3, :3].T + T0[:3, 3]
     x0 = np.concatenate([np.zeros(6), q0.ravel()])
     sol = least_squares(problem.residuals, x0, jac=problem.jacobian, method="trf", loss=loss,
                         f_scale=f_scale, tr_solver="lsmr", x_scale="jac", max_nfev=max_nfev,
-                        tr_options={"atol": lsmr_tol, "btol": lsmr_tol}, xtol=1e-10, ftol=1e-9)
+                        tr_options={"atol": lsmr_tol, "btol": lsmr_tol}, xtol=1e-10, ftol=ftol)
     R, t = problem.pose(sol.x)
     return perturb(T0, sol.x[:6]), (sol.x[6:].reshape(-1, 3) - t) @ R, problem, sol
 
@@ -288,7 +294,7 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
         raise InsufficientMotionsError("fewer than two tracks could be triangulated from the pose")
     sub = _subset(tracks, keep)
     T, pts, problem, sol = _solve(sub, T_init, points[keep], "cauchy", config.cauchy_scale_px,
-                                  config.max_nfev)
+                                  config.max_nfev, ftol=config.robust_ftol)
     res = sol.fun.reshape(-1, 2)
     track_rms = np.sqrt(np.bincount(sub.track, weights=np.sum(res**2, axis=1), minlength=sub.n_tracks)
                         / np.maximum(np.bincount(sub.track, minlength=sub.n_tracks), 1) / 2)
