@@ -15,7 +15,6 @@ from scipy.spatial.transform import Rotation
 from arc_env.scene import Scene, SceneConfig
 from arc_env.tracking import TrackerConfig, track_keypoints
 from planners.collision import CollisionChecker
-from solver.camera import pixels_from_camera_points
 from solver.errors import ArcCalibError, InvalidInputError
 from solver.frames import check_transform, pose_errors
 from solver.observations import KeypointTrack, MotionObservation
@@ -207,7 +206,6 @@ class ArcCalibEnv(gym.Env):
         self.n_motions = 0
         self.n_refused = 0
         self._error_score = self._score(None)
-        self._last_frame: NDArray[np.uint8] | None = None
         #: wall time of the last executed motion: {"render", "tracking", "solver"} seconds (kept out
         #: of ``info`` so that same-seed episodes give identical infos).
         self.last_seconds: dict[str, float] = {}
@@ -235,7 +233,6 @@ class ArcCalibEnv(gym.Env):
         self.n_motions = 0
         self.n_refused = 0
         self._error_score = self._score(None)
-        self._last_frame = None
         return self._observation(), self._info("")
 
     def step(self, action: dict[str, Any]) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
@@ -342,19 +339,14 @@ class ArcCalibEnv(gym.Env):
             frames = []
             t0 = time.perf_counter()
             for d in deltas:
-                qk = q.copy()
-                qk[joint] += d
-                self.scene.set_q(qk)
+                self.scene.set_swept(q, joint, d)
                 frames.append(self.scene.render())
             t1 = time.perf_counter()
             result = track_keypoints(frames, deltas, self.config.tracker)
             tracks = result.tracks
             seconds["render"] = t1 - t0
             seconds["tracking"] = time.perf_counter() - t1
-            self._last_frame = frames[-1]
-        q_end = q.copy()
-        q_end[joint] += delta
-        self.scene.set_q(q_end)
+        self.scene.set_swept(q, joint, delta)
         return MotionObservation(q_start=q, joint=joint, tracks=tracks), len(deltas), seconds
 
     def _oracle_tracks(self, q: FloatArray, joint: int, deltas: FloatArray) -> list[KeypointTrack]:
@@ -370,19 +362,11 @@ class ArcCalibEnv(gym.Env):
             return []
         pick = self.np_random.choice(len(body), size=min(c.oracle_points, len(body)), replace=False)
         body, local = body[pick], local[pick]
-        T = self.T_true
         pix = np.empty((len(deltas), len(body), 2))
         ok = np.empty((len(deltas), len(body)), dtype=bool)
         for k, d in enumerate(deltas):
-            qk = q.copy()
-            qk[joint] += d
-            self.scene.set_q(qk)
-            pc = self.scene.points_base(body, local) @ T[:3, :3].T + T[:3, 3]
-            front = pc[:, 2] > 0.05
-            pc[~front, 2] = 1.0
-            uv = pixels_from_camera_points(pc, self.intrinsics)
-            ok[k] = front & (uv[:, 0] >= 0) & (uv[:, 0] <= self.intrinsics.width - 1) \
-                & (uv[:, 1] >= 0) & (uv[:, 1] <= self.intrinsics.height - 1)
+            self.scene.set_swept(q, joint, d)
+            uv, ok[k] = self.scene.project_points(body, local, self.T_true, min_depth=0.05)
             pix[k] = uv + self.np_random.normal(0.0, c.oracle_noise_px, uv.shape)
         tracks = []
         for p in range(len(body)):

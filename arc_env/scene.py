@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from arc_env.camera import fovy_from_intrinsics, mujoco_camera_from_optical
+from solver.camera import in_image, pixels_from_camera_points
 from solver.errors import InvalidInputError
 from solver.frames import check_transform, transform_from_rt
 from solver.observations import CameraIntrinsics
@@ -167,17 +168,11 @@ def _world_xml(config: SceneConfig) -> str:
     obstacles = "".join(
         f'<geom name="{o.name}" type="box" pos="{" ".join(map(str, o.pos))}" '
         f'size="{" ".join(map(str, o.half_size))}" rgba=".55 .45 .35 1"/>' for o in c.obstacles)
-    mount = ""
-    if c.camera_mount:
-        # Housing behind the optical centre (camera looks along MuJoCo's -z), the pole is added
-        # once the camera is placed (it reaches the floor).
-        mount = (f'<body name="{MOUNT_BODY}">'
-                 f'<camera name="{CAMERA_NAME}" fovy="{fovy_from_intrinsics(c.intrinsics)}"/>'
-                 '<geom name="arc_camera_housing" type="box" size="0.05 0.015 0.015" pos="0 0 0.02" '
-                 'rgba=".15 .15 .15 1"/></body>')
-    else:
-        mount = (f'<body name="{MOUNT_BODY}"><camera name="{CAMERA_NAME}" '
-                 f'fovy="{fovy_from_intrinsics(c.intrinsics)}"/></body>')
+    # The housing sits behind the optical centre (a MuJoCo camera looks along its -z).
+    housing = ('<geom name="arc_camera_housing" type="box" size="0.05 0.015 0.015" pos="0 0 0.02" '
+               'rgba=".15 .15 .15 1"/>') if c.camera_mount else ""
+    mount = (f'<body name="{MOUNT_BODY}"><camera name="{CAMERA_NAME}" '
+             f'fovy="{fovy_from_intrinsics(c.intrinsics)}"/>{housing}</body>')
     return f"""<mujoco model="arc_scene">
   <visual><global offwidth="{c.width}" offheight="{c.height}"/><quality shadowsize="4096"/>
     <headlight ambient=".35 .35 .35" diffuse=".4 .4 .4" specular="0 0 0"/></visual>
@@ -264,7 +259,6 @@ class Scene:
                 self.model = spec.compile()
         except Exception as exc:
             raise InvalidInputError(f"{where}: the scene does not compile: {exc}") from exc
-        self._spec = spec
         m = self.model
         self.base_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, source.base_body)
         self.robot_bodies = _subtree(m, self.base_body)
@@ -291,6 +285,7 @@ class Scene:
         self.T_world_base = transform_from_rt(self._kin.xmat[self.base_body].reshape(3, 3).copy(),
                                               self._kin.xpos[self.base_body].copy())
         self.T_camera_base = np.eye(4)
+        self._surface: dict[int, tuple[NDArray[np.int64], FloatArray]] = {}
         self._renderer: mujoco.Renderer | None = None
         self._scene_option = mujoco.MjvOption()
         for g in range(3, 6):  # collision geoms live in group 3 by convention
@@ -352,6 +347,12 @@ class Scene:
         self.data.qpos[self.qpos_adr] = q
         self._forward(self.data)
 
+    def set_swept(self, q: FloatArray, joint: int, delta: float) -> None:
+        """Put the arm at q: (n_joints,) rad with joint ``joint`` turned further by ``delta`` rad."""
+        q = q.copy()
+        q[joint] += delta
+        self.set_q(q)
+
     def _forward(self, data: mujoco.MjData) -> None:
         mujoco.mj_kinematics(self.model, data)
         mujoco.mj_camlight(self.model, data)  # cameras are placed here, not by mj_kinematics
@@ -390,14 +391,16 @@ class Scene:
     def set_camera(self, T_camera_base: FloatArray) -> None:
         """Place the camera (and its mount) so that ``p_camera = T_camera_base @ p_base``."""
         T_camera_base = check_transform(T_camera_base, "T_camera_base")
-        T_world_camera = self.T_world_base @ np.linalg.inv(T_camera_base)
-        pos, quat = mujoco_camera_from_optical(T_world_camera)
-        m = self.model
-        m.body_pos[self.mount_body] = pos
-        m.body_quat[self.mount_body] = quat
+        self._place_mount(T_camera_base)
         self.T_camera_base = T_camera_base.copy()
+        mujoco.mj_kinematics(self.model, self._kin)
+
+    def _place_mount(self, T_camera_base: FloatArray) -> None:
+        """Move the camera mount body to where ``T_camera_base`` puts the camera; update ``data``."""
+        T_world_camera = self.T_world_base @ np.linalg.inv(T_camera_base)
+        self.model.body_pos[self.mount_body], self.model.body_quat[self.mount_body] = \
+            mujoco_camera_from_optical(T_world_camera)
         self._forward(self.data)
-        mujoco.mj_kinematics(m, self._kin)
 
     # -- rendering -----------------------------------------------------------------------------
     @property
@@ -421,13 +424,11 @@ class Scene:
             cam = mujoco.MjvCamera()
             cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
             cam.fixedcamid = self.camera_id
-            saved = self.model.body_pos[self.mount_body].copy(), self.model.body_quat[self.mount_body].copy()
-            T_world_camera = self.T_world_base @ np.linalg.inv(check_transform(T_camera_base))
-            self.model.body_pos[self.mount_body], self.model.body_quat[self.mount_body] = \
-                mujoco_camera_from_optical(T_world_camera)
-            self._forward(self.data)
+            m = self.model
+            saved = m.body_pos[self.mount_body].copy(), m.body_quat[self.mount_body].copy()
+            self._place_mount(check_transform(T_camera_base, "T_camera_base"))
             r.update_scene(self.data, cam, scene_option=self._scene_option)
-            self.model.body_pos[self.mount_body], self.model.body_quat[self.mount_body] = saved
+            m.body_pos[self.mount_body], m.body_quat[self.mount_body] = saved
             self._forward(self.data)
         r.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = int(self.config.shadows)
         r.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = int(self.config.reflections)
@@ -466,6 +467,8 @@ class Scene:
         Returns:
             body: (P,) int, the body each point is fixed to; local: (P, 3) metres in that body's frame.
         """
+        if joint in self._surface:
+            return self._surface[joint]
         m = self.model
         moving = set(self.moving_bodies(joint))
         bodies, points = [], []
@@ -485,9 +488,14 @@ class Scene:
             local = verts @ rot.reshape(3, 3).T + m.geom_pos[g]
             bodies.append(np.full(len(local), m.geom_bodyid[g]))
             points.append(local)
-        if not points:
-            return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
-        return np.concatenate(bodies).astype(np.int64), np.concatenate(points)
+        if points:
+            out = np.concatenate(bodies).astype(np.int64), np.concatenate(points)
+        else:
+            out = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+        for a in out:
+            a.flags.writeable = False
+        self._surface[joint] = out  # the model's geometry is fixed: compute once per joint
+        return out
 
     def points_base(self, body: NDArray[np.int64], local: FloatArray) -> FloatArray:
         """Body-fixed points at the current state in the base frame: (P,), (P, 3) -> (P, 3) metres."""
@@ -495,3 +503,23 @@ class Scene:
         world = np.einsum("pij,pj->pi", R, local) + self.data.xpos[body]
         R_wb, p_wb = self.T_world_base[:3, :3], self.T_world_base[:3, 3]
         return (world - p_wb) @ R_wb
+
+    def project_points(self, body: NDArray[np.int64], local: FloatArray, T_camera_base: FloatArray,
+                       min_depth: float, margin_px: float = 0.0) -> tuple[FloatArray, NDArray[np.bool_]]:
+        """Body-fixed points at the current state seen through a camera at ``T_camera_base``.
+
+        Args:
+            body: (P,) body ids.
+            local: (P, 3) metres, the points in those bodies' frames.
+            T_camera_base: (4, 4) float64, the camera to project with (true or estimated).
+            min_depth: m; points nearer (or behind the camera) are not visible.
+            margin_px: px; points closer to the image border are not visible.
+
+        Returns:
+            pixels (P, 2) float64 (meaningless where not visible) and visible (P,) bool.
+        """
+        pc = self.points_base(body, local) @ T_camera_base[:3, :3].T + T_camera_base[:3, 3]
+        front = pc[:, 2] > min_depth
+        pc[~front, 2] = 1.0  # keep the projection finite; these points are reported not visible
+        uv = pixels_from_camera_points(pc, self.intrinsics)
+        return uv, front & in_image(uv, self.intrinsics, margin_px)

@@ -16,7 +16,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from solver.camera import pixels_from_camera_points
 from solver.errors import InvalidInputError
 from solver.frames import transform_from_rt
 
@@ -97,19 +96,10 @@ class RandomPlanner:
         body, local = body[pick], local[pick]
         saved = s.q
         fractions = []
-        intr = self.env.intrinsics
         for d in (0.0, delta):
-            qk = q.copy()
-            qk[joint] += d
-            s.set_q(qk)
-            pc = s.points_base(body, local) @ T[:3, :3].T + T[:3, 3]
-            front = pc[:, 2] > 0.1
-            pc[~front, 2] = 1.0
-            uv = pixels_from_camera_points(pc, intr)
-            m = c.image_margin_px
-            inside = (front & (uv[:, 0] > m) & (uv[:, 0] < intr.width - m)
-                      & (uv[:, 1] > m) & (uv[:, 1] < intr.height - m))
-            fractions.append(inside.mean())
+            s.set_swept(q, joint, d)
+            _, visible = s.project_points(body, local, T, min_depth=0.1, margin_px=c.image_margin_px)
+            fractions.append(visible.mean())
         s.set_q(saved)
         return min(fractions) >= c.min_in_view
 
@@ -118,9 +108,7 @@ class RandomPlanner:
         saved = s.q
         frames = []
         for d in (0.0, delta):
-            qk = q.copy()
-            qk[joint] += d
-            s.set_q(qk)
+            s.set_swept(q, joint, d)
             frames.append(s.render().astype(np.int16))
         s.set_q(saved)
         changed = np.abs(frames[0] - frames[1]).max(axis=2) > 12

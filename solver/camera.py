@@ -57,6 +57,17 @@ def pixels_from_camera_points(points_cam: FloatArray, intrinsics: CameraIntrinsi
     return out.reshape(-1, 2)
 
 
+def in_image(pixels: FloatArray, intrinsics: CameraIntrinsics, margin_px: float = 0.0) -> NDArray[np.bool_]:
+    """Which pixels (..., 2) lie inside the image, at least ``margin_px`` from its border -> (...) bool.
+
+    Pixel centres run from 0 to W - 1 (and H - 1), so inside means m <= x <= W - 1 - m and likewise y.
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
+    x, y = pixels[..., 0], pixels[..., 1]
+    m = margin_px
+    return (x >= m) & (x <= intrinsics.width - 1 - m) & (y >= m) & (y <= intrinsics.height - 1 - m)
+
+
 def rays_from_normalized(uv: FloatArray) -> FloatArray:
     """Homogeneous rays (u, v, 1) from normalized coordinates: (M, 2) -> (M, 3)."""
     return np.column_stack([uv, np.ones(uv.shape[0])])

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from solver.camera import pixels_from_camera_points
+from solver.camera import in_image, pixels_from_camera_points
 from solver.errors import InvalidInputError
 from solver.frames import transform_from_rt
 from solver.kinematics import DHChain
@@ -166,10 +166,7 @@ class SyntheticScene:
             pix.append(uv)
             depth.append(z)
         pix_a, depth_a = np.stack(pix, axis=1), np.stack(depth, axis=1)  # (K, M, 2), (K, M)
-        m = cfg.image_margin
-        inside = ((depth_a > 0.1).all(axis=1)
-                  & (pix_a[..., 0] >= m).all(axis=1) & (pix_a[..., 0] <= self.intrinsics.width - 1 - m).all(axis=1)
-                  & (pix_a[..., 1] >= m).all(axis=1) & (pix_a[..., 1] <= self.intrinsics.height - 1 - m).all(axis=1))
+        inside = (depth_a > 0.1).all(axis=1) & in_image(pix_a, self.intrinsics, cfg.image_margin).all(axis=1)
         candidates = np.flatnonzero(inside)
         if candidates.size < cfg.min_visible_tracks:
             return None

@@ -118,3 +118,15 @@ def test_intrinsics_validation(kwargs, match):
 def test_intrinsics_error_is_also_a_value_error():
     with pytest.raises(ValueError, match="K must be 3x3"):
         CameraIntrinsics(K=np.eye(4))
+
+
+def test_in_image_bounds_are_pixel_centres_with_margin():
+    from solver.camera import in_image
+
+    cam = CameraIntrinsics.from_fov(500.0, 640, 480)
+    px = np.array([[0.0, 0.0], [639.0, 479.0], [-0.01, 10.0], [639.01, 10.0], [10.0, 479.5], [320.0, 240.0]])
+    np.testing.assert_array_equal(in_image(px, cam), [True, True, False, False, False, True])
+    np.testing.assert_array_equal(in_image(px, cam, margin_px=5.0), [False, False, False, False, False, True])
+    np.testing.assert_array_equal(in_image(np.array([[5.0, 5.0], [634.0, 474.0], [634.5, 10.0]]), cam, 5.0),
+                                  [True, True, False])
+    assert in_image(np.zeros((3, 4, 2)), cam).shape == (3, 4)
