@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 from arc_env.scene import Scene, SceneConfig
 from arc_env.tracking import TrackerConfig, track_keypoints
 from planners.collision import CollisionChecker
+from planners.transit import TransitConfig, TransitError, TransitPath, plan_transit
 from solver.errors import ArcCalibError, InvalidInputError
 from solver.frames import check_transform, pose_errors
 from solver.observations import KeypointTrack, MotionObservation
@@ -58,6 +59,7 @@ class EnvConfig:
             the tracker delivers at 1080p, enough for the ellipses, and it keeps tracking + solving
             within a frame period.
         tracker: tracking settings.
+        transit: how the arm gets from where it is to Q (straight if free, else OMPL RRTConnect).
     """
 
     scene: SceneConfig = field(default_factory=SceneConfig)
@@ -81,6 +83,7 @@ class EnvConfig:
     calibrator: CalibratorConfig = field(default_factory=lambda: CalibratorConfig(
         max_tracks_per_motion=40, max_frames_per_track=15))
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    transit: TransitConfig = field(default_factory=TransitConfig)
 
     def __post_init__(self) -> None:
         if self.max_motions < 1 or self.max_refusals < 1:
@@ -122,8 +125,10 @@ class ArcCalibEnv(gym.Env):
 
     An action is refused (the robot does not move, ``info["refused"]`` says why, the refusal is
     counted) when Q is outside the limits or not finite, Q[J] + delta leaves the limits, |delta|
-    < min_delta, or the arm collides with itself, the floor, the camera mount or an obstacle at Q
-    or anywhere along the sweep.
+    < min_delta, the arm collides with itself, the floor, the camera mount or an obstacle at Q
+    or anywhere along the sweep, or no collision-free transit from the current configuration to
+    Q is found. The transit is the straight joint-space segment when it is free, else a path
+    planned by OMPL's RRTConnect (``planners.transit``); it is executed without rendering.
 
     ## Observation Space
     ``Dict``:
@@ -162,9 +167,12 @@ class ArcCalibEnv(gym.Env):
     ## Info
     Every step: ``rot_error_rad``, ``trans_error_m`` (None without an estimate), ``T_camera_base``
     (estimate or None), ``stage``, ``refused`` ("" or why), ``n_refused``, ``n_motions``; after an
-    executed motion also ``motion`` (joint, tracks, accepted, reason), ``n_frames`` and
-    ``transit_rad`` (joint-space distance to Q). Wall times are in ``env.last_seconds`` (render,
-    tracking, solver), not in ``info``, which same-seed episodes reproduce exactly.
+    executed motion also ``motion`` (joint, tracks, accepted, reason), ``n_frames``,
+    ``transit_rad`` (joint-space length of the transit path to Q) and ``transit_planned`` (True
+    when the straight segment was blocked and OMPL planned around it). ``env.executed`` lists the
+    executed motions (Q, J, delta) and ``env.last_transit`` holds the last transit's waypoints.
+    Wall times are in ``env.last_seconds`` (transit, render, tracking, solver), not in ``info``,
+    which same-seed episodes reproduce exactly.
 
     ## Arguments
     ``gymnasium.make("ArcCalib-v0", config=EnvConfig(...), render_mode="rgb_array")``; see
@@ -206,6 +214,11 @@ class ArcCalibEnv(gym.Env):
         self.n_motions = 0
         self.n_refused = 0
         self._error_score = self._score(None)
+        #: executed motions of this episode, in order: (Q (n,) rad, J, delta rad).
+        self.executed: list[tuple[FloatArray, int, float]] = []
+        #: the last executed transit (None before the first motion).
+        self.last_transit: TransitPath | None = None
+        self._transit_seed = 0
         #: wall time of the last executed motion: {"render", "tracking", "solver"} seconds (kept out
         #: of ``info`` so that same-seed episodes give identical infos).
         self.last_seconds: dict[str, float] = {}
@@ -232,6 +245,9 @@ class ArcCalibEnv(gym.Env):
                                      replace(c.calibrator, seed=solver_seed))
         self.n_motions = 0
         self.n_refused = 0
+        self.executed = []
+        self.last_transit = None
+        self._transit_seed = int(self.np_random.integers(2**31 - 1))
         self._error_score = self._score(None)
         return self._observation(), self._info("")
 
@@ -245,13 +261,23 @@ class ArcCalibEnv(gym.Env):
             reason = self.validate(q, joint, delta)
         except InvalidInputError as exc:
             reason = str(exc)
-        if reason:
+        transit: TransitPath | None = None
+        if not reason:
+            assert self.checker is not None
+            try:
+                transit = plan_transit(self.checker, self.scene.lower, self.scene.upper, self.scene.q, q,
+                                       c.transit, seed=self._transit_seed + self.n_motions + self.n_refused)
+            except TransitError as exc:
+                reason = f"no transit to Q: {exc}"
+        if reason or transit is None:
             self.n_refused += 1
             info = self._info(reason)
             return (self._observation(), -c.refusal_penalty, False, self.n_refused >= c.max_refusals, info)
 
-        transit = float(np.linalg.norm(q - self.scene.q))
+        self.last_transit = transit
+        self.executed.append((q.copy(), joint, delta))
         obs_motion, n_frames, seconds = self._execute(q, joint, delta)
+        seconds["transit"] = transit.seconds
         t0 = time.perf_counter()
         try:
             report = self.calibrator.add_motion(obs_motion)
@@ -267,7 +293,8 @@ class ArcCalibEnv(gym.Env):
         reward = self._error_score - score - c.step_cost
         self._error_score = score
         info = self._info("")
-        info.update(motion=motion_info, n_frames=n_frames, transit_rad=transit)
+        info.update(motion=motion_info, n_frames=n_frames, transit_rad=transit.length_rad,
+                    transit_planned=transit.planned)
         self.last_seconds = seconds
         terminated = bool(state.converged) and c.terminate_on_convergence
         truncated = self.n_motions >= c.max_motions and not terminated

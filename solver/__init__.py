@@ -37,7 +37,7 @@ from solver.kinematics import PANDA, AxisFunction, DHChain
 from solver.motion import MotionConfig, MotionGeometry, estimate_motion_geometry
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
 from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig, MotionReport
-from solver.refinement import RefinementConfig, RefinementResult, build_track_set, refine
+from solver.refinement import RefinementConfig, RefinementResult, build_track_set, pose_information, refine
 from solver.synthetic import (
     SyntheticConfig,
     SyntheticMotion,
@@ -87,6 +87,7 @@ __all__ = [
     "look_at",
     "normalized_from_pixels",
     "perturb",
+    "pose_information",
     "pixels_from_camera_points",
     "pose_difference",
     "pose_errors",

@@ -284,6 +284,13 @@ class Calibrator:
         )
         return self.state
 
+    def motion_geometry(self, index: int) -> MotionGeometry | None:
+        """Stage one's axis and reference plane of motion ``index`` (None: pruned or no axis)."""
+        if not 0 <= index < len(self._motions):
+            raise InvalidInputError(f"no motion {index}: {len(self._motions)} added")
+        m = self._motions[index]
+        return m.geometry if m is not None else None
+
     def _correspondence(self, k: int) -> AxisCorrespondence:
         m = self._motions[k]
         return AxisCorrespondence(m.axis_base, m.point_base, m.geometry.axis_cam,

@@ -249,12 +249,11 @@ def _solve(tracks: TrackSet, T0: FloatArray, points: FloatArray, loss: str, f_sc
     return perturb(T0, sol.x[:6]), (sol.x[6:].reshape(-1, 3) - t) @ R, problem, sol
 
 
-def pose_covariance(jac: sp.csr_matrix, sigma2: float) -> FloatArray:
-    """Covariance (6, 6) of the pose block: sigma^2 (U - W V^-1 W^T)^-1 (Schur complement).
+def _schur_information(jac: sp.csr_matrix) -> FloatArray:
+    """U - W V^-1 W^T (6, 6): the pose block of J^T J with every track's point marginalized out.
 
     Args:
         jac: (2P, 6 + 3T) sparse Jacobian in pixels, pose columns first.
-        sigma2: residual variance, px^2.
     """
     Jp = jac[:, :6].toarray()
     Jx = jac[:, 6:].tocsc()
@@ -267,8 +266,44 @@ def pose_covariance(jac: sp.csr_matrix, sigma2: float) -> FloatArray:
                           idx[:, None, :].repeat(3, 1).ravel()]).reshape(T, 3, 3)
     Vinv = np.linalg.inv(blocks + 1e-12 * np.eye(3))
     Wb = W.reshape(6, T, 3).transpose(1, 0, 2)  # (T, 6, 3)
-    S = U - np.einsum("tij,tjk,tlk->il", Wb, Vinv, Wb)
-    return sigma2 * np.linalg.inv(S)
+    return U - np.einsum("tij,tjk,tlk->il", Wb, Vinv, Wb)
+
+
+def pose_covariance(jac: sp.csr_matrix, sigma2: float) -> FloatArray:
+    """Covariance (6, 6) of the pose block: sigma^2 (U - W V^-1 W^T)^-1 (Schur complement).
+
+    Args:
+        jac: (2P, 6 + 3T) sparse Jacobian in pixels, pose columns first.
+        sigma2: residual variance, px^2.
+    """
+    return sigma2 * np.linalg.inv(_schur_information(jac))
+
+
+def pose_information(tracks: TrackSet, T_camera_base: FloatArray) -> FloatArray:
+    """Fisher information (6, 6) about (omega, tau) that noise-free tracks carry, per px^-2 of noise.
+
+    The bundle adjustment's own Jacobian at ``T_camera_base`` and the tracks' points (triangulated
+    from it), with each point marginalized out (Schur complement): what these observations would
+    add to the estimate if every pixel had unit variance. Divide by sigma^2 (px^2) for the Fisher
+    information; its inverse is the Cramer-Rao bound of the pose from these tracks alone. Tracks
+    that cannot be triangulated (a point that does not move, or behind the camera) add nothing.
+    Used to predict what a planned motion would add (``planners.informed_planner``).
+
+    Args:
+        tracks: the observations (``build_track_set``); uv need only be their projections.
+        T_camera_base: (4, 4) float64: the pose at which to evaluate.
+
+    Returns:
+        (6, 6) float64, symmetric positive semi-definite, in px^2 per (rad or m)^2.
+    """
+    points, ok = triangulate_tracks(tracks, T_camera_base)
+    if not ok.any():
+        return np.zeros((6, 6))
+    sub = _subset(tracks, ok)
+    problem = _Problem(sub, T_camera_base)
+    q = points[ok] @ T_camera_base[:3, :3].T + T_camera_base[:3, 3]
+    S = _schur_information(problem.jacobian(np.concatenate([np.zeros(6), q.ravel()])))
+    return 0.5 * (S + S.T)
 
 
 def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None = None,

@@ -16,6 +16,7 @@ from solver.refinement import (
     _Problem,
     build_track_set,
     pose_covariance,
+    pose_information,
     refine,
     triangulate_tracks,
 )
@@ -218,6 +219,32 @@ def test_pose_covariance_is_the_pose_block_of_the_full_inverse():
     sigma2 = 0.25
     full = sigma2 * np.linalg.inv((J.T @ J).toarray())
     np.testing.assert_allclose(pose_covariance(J, sigma2), full[:6, :6], rtol=1e-6)
+
+
+def test_pose_information_is_the_inverse_pose_block_from_finite_differences():
+    # Independent construction: the full Fisher matrix from a finite-difference Jacobian of the
+    # residuals at the truth, inverted, pose block, inverted back (= the Schur complement).
+    scene = _make_scene(14, n_motions=3, n_tracks=3, n_frames=10)
+    tracks = build_track_set(scene.motions, FOCAL)
+    problem = _Problem(tracks, scene.T_true)
+    J = _finite_difference_jacobian(problem, np.concatenate([np.zeros(6), _camera_points(scene).ravel()]))
+    expected = np.linalg.inv(np.linalg.inv(J.T @ J)[:6, :6])
+    info = pose_information(tracks, scene.T_true)
+    np.testing.assert_allclose(info, expected, rtol=1e-4, atol=1e-6 * np.abs(expected).max())
+    np.testing.assert_allclose(info, info.T, rtol=0, atol=1e-9 * np.abs(info).max())
+
+
+def test_pose_information_adds_over_motions_and_ignores_static_tracks():
+    scene = _make_scene(15, n_motions=4, n_tracks=4, n_frames=12)
+    whole = pose_information(build_track_set(scene.motions, FOCAL), scene.T_true)
+    parts = sum(pose_information(build_track_set(scene.motions[i:i + 2], FOCAL), scene.T_true)
+                for i in (0, 2))
+    np.testing.assert_allclose(whole, parts, rtol=1e-8, atol=1e-8 * np.abs(whole).max())
+    axis, pivot, tracks = scene.motions[0]
+    static = (tracks[0][0][:1].repeat(12, axis=0), np.zeros(12))  # a point that never moves
+    with_static = pose_information(build_track_set([*scene.motions, (axis, pivot, [static])], FOCAL),
+                                   scene.T_true)
+    np.testing.assert_allclose(with_static, whole, rtol=1e-8, atol=1e-8 * np.abs(whole).max())
 
 
 def test_refine_rejects_non_finite_start():

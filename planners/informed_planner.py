@@ -1,0 +1,455 @@
+"""Informed exploratory motions (ours): the safe candidate that adds the most information about the pose.
+
+Criterion. With an estimate T of ``T_camera_base``, a candidate motion (Q, J, Delta) is scored by
+what the bundle adjustment would learn from it: its predicted tracks are the projections, through
+T, of points sampled on the surface of the links that J moves (as many tracks and frames as the
+calibrator keeps per motion), and ``solver.refinement.pose_information`` gives their Fisher
+information about the pose (omega, tau) with every point marginalized out, exactly as the bundle
+adjustment does (each point is an unknown). The information of the motions already executed and
+accepted is predicted the same way with the current T and summed, plus a weak prior; the
+candidate's score is the D-optimal gain
+
+    gain = log det(I_done + I_candidate) - log det(I_done),
+
+the expected shrinkage of the uncertainty ellipsoid's volume. D-optimality is invariant to the
+units of rotation and translation (a rescaling of the parameters changes both determinants by the
+same factor), so no weighting of radians against metres is needed, and it rewards what the pose
+still lacks: a motion that repeats information already held gains little. Degenerate motions
+score low by construction, with no hand-made penalty: a joint whose axis points at the camera
+moves its points in a plane parallel to the image, which leaves the depth along the axis to the
+unknown points (the marginalization removes it); tiny projected circles carry little information
+per pixel of noise; points that leave the image or go behind the camera are dropped from the
+prediction, and a candidate whose moving links are not in view at both ends of the sweep (with a
+margin) is not considered. Occlusion of the moving links by other links is not predicted.
+
+Candidates. Random (Q, J, Delta) as in the paper, plus IK-seeded ones: mink places the arm's last
+link at a random pixel of the central image at a depth near the arm's, seen with T, so the
+moving links are large and whole in view. The best-scoring candidates are checked by the
+environment (limits, collisions over the sweep) in order, and the first valid one is returned.
+
+Before any estimate exists (the first motions), there is nothing to project with, yet the
+linear calibration needs three motions whose ellipses stage one can read and whose axis lines
+fix the pose. Valid random candidates are scored by (1) the expected ellipse quality of their
+axis under a belief about the camera's viewing direction in the base frame, which stage one's
+verdicts on the executed motions sharpen (a recovered camera-frame axis gives the cosine between
+the axis and the optical axis; "lines, not ellipses" says it was seen edge-on); (2) the novelty
+of their axis line against the motions that gave an axis (angle and distance: lines that all
+meet in one point cannot fix depth); (3) |Delta|. Of the best few, the one whose start and end
+frames differ in the most pixels (the image test a real robot does with two snapshots) is chosen.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from planners.ik import IKSolver, target_in_view
+from solver.camera import normalized_from_pixels
+from solver.errors import ArcCalibError, InvalidInputError
+from solver.frames import transform_from_rt
+from solver.refinement import build_track_set, pose_information
+
+if TYPE_CHECKING:
+    from arc_env.env import ArcCalibEnv
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class InformedPlannerConfig:
+    """Settings of ``InformedPlanner``.
+
+    Attributes:
+        delta_range: (min, max) rad of |Delta| of candidates (the env's limits apply on top).
+        limit_margin: fraction of each joint's range kept from its limits when sampling Q.
+        n_random: random candidates scored per call.
+        n_ik: IK-seeded candidates scored per call.
+        n_validate: best-scoring candidates checked by the environment before drawing new ones.
+        max_rounds: rounds of drawing, scoring and checking before giving up.
+        predicted_tracks: tracks per predicted motion (the calibrator keeps 40 in the env).
+        predicted_frames: frames per predicted track (the calibrator keeps 15).
+        noise_px: assumed pixel noise of a track, px (scales the motions' information against
+            the prior).
+        prior_std: (rotation rad, translation m) 1-sigma of the weak prior that makes the
+            information of the first motions invertible.
+        image_margin_px: px; predicted points must be this far inside the image.
+        min_in_view: fraction of the moving links' sampled points that must be in view at both
+            ends of the sweep.
+        ik_region: fraction of the image width/height (centred) where IK targets are drawn.
+        ik_depth_spread: m; IK target depths are the arm's current depth +- this.
+        full_radius_m: m; before an estimate, motions whose moving points lie (median) closer
+            to the axis than this are discounted in proportion.
+        prior_tracks: tracks of the prior on the tracker's yield (``expected_tracks``) ...
+        prior_area: ... on this fraction of the image's area.
+        bootstrap_candidates: valid candidates drawn per call before an estimate exists.
+        bootstrap_image_tests: of those, how many (best scores first) get the image test.
+        changed_fraction_full: fraction of pixels changing between the sweep's end frames at
+            which the image test no longer discounts a candidate (below it the score scales down:
+            small moving links give few tracks).
+    """
+
+    delta_range: tuple[float, float] = (0.6, 1.5)
+    limit_margin: float = 0.05
+    n_random: int = 32
+    n_ik: int = 8
+    n_validate: int = 12
+    max_rounds: int = 6
+    predicted_tracks: int = 40
+    predicted_frames: int = 15
+    noise_px: float = 0.5
+    prior_std: tuple[float, float] = (0.1, 0.1)
+    image_margin_px: float = 20.0
+    min_in_view: float = 0.7
+    ik_region: float = 0.6
+    ik_depth_spread: float = 0.25
+    full_radius_m: float = 0.25
+    prior_tracks: float = 40.0
+    prior_area: float = 0.03
+    bootstrap_candidates: int = 16
+    bootstrap_image_tests: int = 2
+    changed_fraction_full: float = 0.03
+
+    def __post_init__(self) -> None:
+        if not 0 < self.delta_range[0] <= self.delta_range[1]:
+            raise InvalidInputError("delta_range must be (min, max) with 0 < min <= max")
+        if not 0 <= self.limit_margin < 0.5:
+            raise InvalidInputError("limit_margin must be in [0, 0.5)")
+        if self.n_random + self.n_ik < 1 or self.n_validate < 1 or self.max_rounds < 1:
+            raise InvalidInputError("need n_random + n_ik >= 1, n_validate >= 1, max_rounds >= 1")
+        if self.predicted_tracks < 1 or self.predicted_frames < 4:
+            raise InvalidInputError("predicted_tracks must be >= 1 and predicted_frames >= 4")
+        if self.noise_px <= 0 or min(self.prior_std) <= 0:
+            raise InvalidInputError("noise_px and prior_std must be > 0")
+        if self.bootstrap_candidates < 1 or self.bootstrap_image_tests < 0:
+            raise InvalidInputError("bootstrap_candidates must be >= 1, bootstrap_image_tests >= 0")
+
+
+@dataclass(frozen=True)
+class ScoredMotion:
+    """A candidate and its score.
+
+    Attributes:
+        q: (n,) rad, start configuration.
+        joint: the joint that turns.
+        delta: rad.
+        gain: D-optimal information gain (nats); -inf when not in view.
+        in_view: fraction of sampled points in view at the worse end of the sweep.
+        source: "random" or "ik".
+    """
+
+    q: FloatArray
+    joint: int
+    delta: float
+    gain: float
+    in_view: float
+    source: str
+
+
+class InformedPlanner:
+    """Chooses the valid exploratory motion with the largest predicted information gain.
+
+    Same interface as ``RandomPlanner``: ``plan(observation)`` returns an env action.
+
+    Args:
+        env: the environment (robot model, collision checks, camera image, executed motions and
+            the calibrator's verdicts on them).
+        rng: random generator; None seeds one from the env's ``np_random``.
+        config: settings.
+    """
+
+    def __init__(self, env: ArcCalibEnv, rng: np.random.Generator | None = None,
+                 config: InformedPlannerConfig | None = None):
+        self.env = env
+        self.rng = rng if rng is not None else np.random.default_rng(env.np_random.integers(2**31 - 1))
+        self.config = config or InformedPlannerConfig()
+        self.ik = IKSolver(env.scene)
+        self._tracks_per_px2 = self.config.prior_tracks / (
+            self.config.prior_area * env.intrinsics.width * env.intrinsics.height)
+        n = 2000
+        k = np.arange(n) + 0.5
+        z = 1 - 2 * k / n
+        phi = np.pi * (1 + 5**0.5) * k
+        self._sphere = np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], axis=1)
+        #: the candidates scored by the last ``plan`` call (best first), for inspection.
+        self.last_candidates: list[ScoredMotion] = []
+
+    # -- sampling ------------------------------------------------------------------------------
+    def _delta(self, q: FloatArray, joint: int) -> float | None:
+        s, c = self.env.scene, self.config
+        dmin = max(c.delta_range[0], self.env.config.min_delta)
+        dmax = min(c.delta_range[1], self.env.config.max_delta)
+        room_up, room_down = s.upper[joint] - q[joint], q[joint] - s.lower[joint]
+        signs = [sg for sg, room in ((1.0, room_up), (-1.0, room_down)) if room >= dmin]
+        if not signs:
+            return None
+        sign = signs[int(self.rng.integers(len(signs)))]
+        room = room_up if sign > 0 else room_down
+        return float(sign * self.rng.uniform(dmin, min(dmax, room)))
+
+    def _random_q(self) -> FloatArray:
+        s, c = self.env.scene, self.config
+        span = s.upper - s.lower
+        return self.rng.uniform(s.lower + c.limit_margin * span, s.upper - c.limit_margin * span)
+
+    def _random_candidate(self) -> tuple[FloatArray, int, float] | None:
+        q = self._random_q()
+        joint = int(self.rng.integers(self.env.scene.n_joints))
+        delta = self._delta(q, joint)
+        return None if delta is None else (q, joint, delta)
+
+    def _ik_candidate(self, T: FloatArray) -> tuple[FloatArray, int, float] | None:
+        s, c = self.env.scene, self.config
+        intr = self.env.intrinsics
+        tip = int(s.model.jnt_bodyid[s.arm_joints[-1]])
+        depth_now = float((T[:3, :3] @ s.points_base(np.array([tip]), np.zeros((1, 3)))[0] + T[:3, 3])[2])
+        depth = max(0.3, depth_now + self.rng.uniform(-c.ik_depth_spread, c.ik_depth_spread))
+        half = 0.5 * c.ik_region
+        pixel = np.array([intr.width * self.rng.uniform(0.5 - half, 0.5 + half),
+                          intr.height * self.rng.uniform(0.5 - half, 0.5 + half)])
+        result = self.ik.solve(tip, target_in_view(T, intr, pixel, depth), self._random_q())
+        if not result.reached:
+            return None
+        joint = int(self.rng.integers(s.n_joints))
+        delta = self._delta(result.q, joint)
+        return None if delta is None else (result.q, joint, delta)
+
+    # -- prediction ----------------------------------------------------------------------------
+    def predicted_information(self, q: FloatArray, joint: int, delta: float, T: FloatArray
+                              ) -> tuple[FloatArray, float, float]:
+        """Fisher information (6, 6) of (omega, tau) per sampled track a motion would give seen with T.
+
+        Args:
+            q: (n,) rad, start configuration.
+            joint: the joint that turns.
+            delta: rad.
+            T: (4, 4) the pose estimate to project with.
+
+        Returns:
+            ((6, 6) information in (rad or m)^-2 at ``noise_px`` averaged per sampled track,
+            fraction of the sampled points in view at the worse end of the sweep, projected area
+            of the moving links in px^2: the convex hull of the points in view, mean of both ends).
+        """
+        s, c = self.env.scene, self.config
+        body, local = s.surface_points(joint)
+        if len(body) == 0:
+            return np.zeros((6, 6)), 0.0, 0.0
+        pick = np.random.default_rng(joint).choice(len(body), size=min(c.predicted_tracks, len(body)),
+                                                   replace=False)
+        body, local = body[pick], local[pick]
+        deltas = np.linspace(0.0, delta, c.predicted_frames)
+        saved = s.q
+        uv = np.empty((len(deltas), len(body), 2))
+        ok = np.empty((len(deltas), len(body)), dtype=bool)
+        for k, d in enumerate(deltas):
+            s.set_swept(q, joint, d)
+            uv[k], ok[k] = s.project_points(body, local, T, min_depth=0.1, margin_px=c.image_margin_px)
+        s.set_q(saved)
+        in_view = float(min(ok[0].mean(), ok[-1].mean()))
+        area = float(np.mean([cv2.contourArea(cv2.convexHull(uv[k][ok[k]].astype(np.float32)))
+                              if ok[k].sum() >= 3 else 0.0 for k in (0, -1)]))
+        tracks = []
+        for p in range(len(body)):
+            frames = np.flatnonzero(ok[:, p])
+            if len(frames) >= 4:
+                tracks.append((normalized_from_pixels(uv[frames, p], self.env.intrinsics), deltas[frames]))
+        if not tracks:
+            return np.zeros((6, 6)), in_view, area
+        axis, point = s.axis_and_point(q, joint)
+        info = pose_information(build_track_set([(axis, point, tracks)], self.env.intrinsics.focal), T)
+        return info / c.noise_px**2 / len(body), in_view, area
+
+    def expected_tracks(self, area_px: float) -> float:
+        """Tracks the bundle adjustment is expected to get from moving links covering area_px px^2.
+
+        The tracker's yield per projected pixel is learned from this episode: the tracks of the
+        executed motions over their predicted areas, with a prior of ``prior_tracks`` tracks
+        on ``prior_area`` of the image; capped at ``predicted_tracks`` (the calibrator's cap).
+        """
+        c = self.config
+        return min(float(c.predicted_tracks), self._tracks_per_px2 * area_px)
+
+    def information_so_far(self, T: FloatArray) -> FloatArray:
+        """The prior plus the predicted information (6, 6) of the executed motions the calibrator accepted.
+
+        Also refits the tracker's yield per projected pixel (``expected_tracks``) from the
+        executed motions' track counts and predicted areas.
+        """
+        c = self.config
+        intr = self.env.intrinsics
+        info = np.diag(np.r_[np.full(3, c.prior_std[0] ** -2), np.full(3, c.prior_std[1] ** -2)])
+        reports = self.env.calibrator.reports if self.env.calibrator is not None else []
+        tracks, area = c.prior_tracks, c.prior_area * intr.width * intr.height
+        per_motion = []
+        for i, (q, joint, delta) in enumerate(self.env.executed[:len(reports)]):
+            motion_info, _, motion_area = self.predicted_information(q, joint, delta, T)
+            tracks += reports[i].n_tracks
+            area += motion_area
+            per_motion.append((reports[i], motion_info, motion_area))
+        self._tracks_per_px2 = tracks / area
+        for report, motion_info, _ in per_motion:
+            if report.accepted:
+                info = info + motion_info * min(report.n_tracks, c.predicted_tracks)
+        return info
+
+    def score(self, q: FloatArray, joint: int, delta: float, T: FloatArray, info_so_far: FloatArray
+              ) -> ScoredMotion:
+        """The candidate's D-optimal gain log det(I + I_c) - log det(I) (-inf when not in view)."""
+        info, in_view, area = self.predicted_information(q, joint, delta, T)
+        if in_view < self.config.min_in_view:
+            return ScoredMotion(q, joint, delta, -np.inf, in_view, "")
+        info = info * self.expected_tracks(area)
+        gain = np.linalg.slogdet(info_so_far + info)[1] - np.linalg.slogdet(info_so_far)[1]
+        return ScoredMotion(q, joint, delta, float(gain), in_view, "")
+
+    # -- planning ------------------------------------------------------------------------------
+    def plan(self, observation: dict[str, Any]) -> dict[str, Any]:
+        """The next motion as an env action {"Q", "J", "delta"}.
+
+        Raises:
+            InvalidInputError: no valid, visible motion was found.
+        """
+        if int(observation.get("has_estimate", 0)):
+            R = Rotation.from_rotvec(np.asarray(observation["rotation"], dtype=np.float64)).as_matrix()
+            return self._plan_informed(transform_from_rt(R, np.asarray(observation["translation"], dtype=np.float64)))
+        return self._plan_bootstrap()
+
+    def _plan_informed(self, T: FloatArray) -> dict[str, Any]:
+        c = self.config
+        so_far = self.information_so_far(T)
+        for _ in range(c.max_rounds):
+            scored: list[ScoredMotion] = []
+            for k in range(c.n_random + c.n_ik):
+                source = "random" if k < c.n_random else "ik"
+                try:
+                    cand = self._random_candidate() if source == "random" else self._ik_candidate(T)
+                except ArcCalibError:
+                    cand = None
+                if cand is None:
+                    continue
+                sm = self.score(*cand, T, so_far)
+                if np.isfinite(sm.gain):
+                    scored.append(ScoredMotion(sm.q, sm.joint, sm.delta, sm.gain, sm.in_view, source))
+            scored.sort(key=lambda m: -m.gain)
+            self.last_candidates = scored
+            for m in scored[:c.n_validate]:
+                if not self.env.validate(m.q, m.joint, m.delta):
+                    return {"Q": m.q, "J": m.joint, "delta": np.array([m.delta])}
+        raise InvalidInputError(f"no valid, visible motion in {c.max_rounds} rounds of "
+                                f"{c.n_random + c.n_ik} candidates")
+
+    def view_direction_posterior(self) -> tuple[FloatArray, FloatArray]:
+        """Belief about the camera's optical axis in the base frame, from stage one's verdicts.
+
+        With R of T_camera_base, v = R^T e_z is the optical axis in the base frame, and a motion
+        whose axis stage one recovered gives v . a_base = (R a_base)_z = the z of its camera-frame
+        axis; a motion stage one found to be "lines, not ellipses" was seen nearly edge-on,
+        |v . a_base| small. A weak prior says the camera looks down or level rather than up.
+
+        Returns:
+            directions (N, 3) unit vectors (a Fibonacci sphere) and weights (N,) summing to 1.
+        """
+        dirs = self._sphere
+        cost = 0.5 * (np.maximum(0.0, dirs[:, 2] - 0.2) / 0.1) ** 2
+        calibrator = self.env.calibrator
+        if calibrator is not None:
+            for i, (q, joint, _) in enumerate(self.env.executed[:len(calibrator.reports)]):
+                axis = self.env.scene.axis_and_point(q, joint)[0]
+                dots = dirs @ axis
+                geometry = calibrator.motion_geometry(i)
+                if geometry is not None:
+                    cost += 0.5 * ((dots - geometry.axis_cam[2]) / 0.1) ** 2
+                elif calibrator.reports[i].stage_one.startswith("the trajectories are lines"):
+                    cost += 0.5 * (np.maximum(0.0, np.abs(dots) - 0.15) / 0.05) ** 2
+        w = np.exp(-(cost - cost.min()))
+        return dirs, w / w.sum()
+
+    @staticmethod
+    def ellipse_quality(cos_view: FloatArray) -> FloatArray:
+        """How well stage one sees a circle whose axis makes |cos| = cos_view with the optical axis, 0..1.
+
+        Edge-on circles (|cos| < ~0.12) project to lines; between about 0.3 and 0.95 the ellipse's
+        shape fixes the circle's normal well; head-on circles (|cos| -> 1) leave the two normal
+        candidates close and can be ambiguous.
+        """
+        c = np.abs(cos_view)
+        return np.clip((c - 0.12) / 0.2, 0.0, 1.0) * np.where(c > 0.95, 0.6, 1.0)
+
+    @staticmethod
+    def line_distance(p1: FloatArray, a1: FloatArray, p2: FloatArray, a2: FloatArray) -> float:
+        """Closest-approach distance (m) between the lines p1 + s a1 and p2 + s a2 (unit a1, a2)."""
+        n = np.cross(a1, a2)
+        if np.linalg.norm(n) < 1e-6:
+            return float(np.linalg.norm(np.cross(p2 - p1, a1)))
+        return float(abs((p2 - p1) @ n) / np.linalg.norm(n))
+
+    def bootstrap_score(self, q: FloatArray, joint: int, delta: float,
+                        posterior: tuple[FloatArray, FloatArray]) -> float:
+        """Score of a motion before any estimate: ellipse quality x novelty x size x |Delta|.
+
+        Quality is expected under ``view_direction_posterior``; size is the median distance of
+        the moving links' surface points from the axis over ``full_radius_m`` (at most 1): a hand
+        turning about its own axis sweeps small arcs and gives few tracks.
+
+        Novelty is against the executed motions that gave an axis (what the linear calibration
+        will use): the smallest angle to their axes and the smallest distance to their lines, so
+        that three motions fix the rotation and the translation (axes that all meet in one point,
+        like the Panda's joints 1-3, cannot fix depth).
+        """
+        s = self.env.scene
+        axis, point = s.axis_and_point(q, joint)
+        dirs, w = posterior
+        quality = float(w @ self.ellipse_quality(dirs @ axis))
+        angle, dist = np.pi / 2, 0.15
+        calibrator = self.env.calibrator
+        for i, (qe, je, _) in enumerate(self.env.executed):
+            if calibrator is None or i >= len(calibrator.reports) or calibrator.motion_geometry(i) is None:
+                continue
+            ae, pe = s.axis_and_point(qe, je)
+            angle = min(angle, float(np.arccos(min(1.0, abs(float(axis @ ae))))))
+            dist = min(dist, self.line_distance(point, axis, pe, ae))
+        novelty = (0.25 + angle / (np.pi / 2)) * (0.25 + dist / 0.15)
+        body, local = s.surface_points(joint)
+        if len(body) == 0:
+            return 0.0
+        saved = s.q
+        s.set_q(q)
+        rel = s.points_base(body, local) - point
+        s.set_q(saved)
+        radius = float(np.median(np.linalg.norm(rel - np.outer(rel @ axis, axis), axis=1)))
+        size = min(1.0, radius / self.config.full_radius_m)
+        return quality * novelty * size * abs(delta) / self.env.config.max_delta
+
+    def _changed_fraction(self, q: FloatArray, joint: int, delta: float) -> float:
+        s = self.env.scene
+        saved = s.q
+        frames = []
+        for d in (0.0, delta):
+            s.set_swept(q, joint, d)
+            frames.append(s.render().astype(np.int16))
+        s.set_q(saved)
+        return float((np.abs(frames[0] - frames[1]).max(axis=2) > 12).mean())
+
+    def _plan_bootstrap(self) -> dict[str, Any]:
+        c = self.config
+        posterior = self.view_direction_posterior()
+        valid: list[tuple[float, FloatArray, int, float]] = []
+        for _ in range(40 * c.bootstrap_candidates):
+            cand = self._random_candidate()
+            if cand is None or self.env.validate(*cand):
+                continue
+            q, joint, delta = cand
+            valid.append((self.bootstrap_score(q, joint, delta, posterior), q, joint, delta))
+            if len(valid) >= c.bootstrap_candidates:
+                break
+        if not valid:
+            raise InvalidInputError(f"no valid motion in {40 * c.bootstrap_candidates} random candidates")
+        valid.sort(key=lambda v: -v[0])
+        tested = [(v[0] * min(1.0, self._changed_fraction(v[1], v[2], v[3]) / c.changed_fraction_full), *v[1:])
+                  for v in valid[:c.bootstrap_image_tests]]
+        _, q, joint, delta = max(tested, key=lambda v: v[0]) if tested else valid[0]
+        return {"Q": q, "J": joint, "delta": np.array([delta])}
