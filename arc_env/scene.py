@@ -18,6 +18,7 @@ Frames: the world frame is MuJoCo's; the robot's base frame is its base body's f
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import os
 import warnings
@@ -383,9 +384,9 @@ class Scene:
         return _subtree(self.model, int(self.model.jnt_bodyid[self.arm_joints[joint]]))
 
     # -- camera --------------------------------------------------------------------------------
-    @property
+    @functools.cached_property
     def intrinsics(self) -> CameraIntrinsics:
-        """The rendered camera's intrinsics."""
+        """The rendered camera's intrinsics (built once: the config is frozen)."""
         return self.config.intrinsics
 
     def set_camera(self, T_camera_base: FloatArray) -> None:

@@ -51,8 +51,8 @@ from scipy.spatial.transform import Rotation
 from planners.ik import IKSolver, target_in_view
 from solver.camera import normalized_from_pixels
 from solver.errors import ArcCalibError, InvalidInputError
-from solver.frames import transform_from_rt
-from solver.refinement import build_track_set, pose_information
+from solver.frames import rotation_about_axis, transform_from_rt
+from solver.refinement import TrackSet, pose_information
 
 if TYPE_CHECKING:
     from arc_env.env import ArcCalibEnv
@@ -86,7 +86,8 @@ class InformedPlannerConfig:
             to the axis than this are discounted in proportion.
         prior_tracks: tracks of the prior on the tracker's yield (``expected_tracks``) ...
         prior_area: ... on this fraction of the image's area.
-        bootstrap_candidates: valid candidates drawn per call before an estimate exists.
+        bootstrap_candidates: candidates drawn per round before an estimate exists (the best
+            ``n_validate`` are checked by the environment).
         bootstrap_image_tests: of those, how many (best scores first) get the image test.
         changed_fraction_full: fraction of pixels changing between the sweep's end frames at
             which the image test no longer discounts a candidate (below it the score scales down:
@@ -110,7 +111,7 @@ class InformedPlannerConfig:
     full_radius_m: float = 0.25
     prior_tracks: float = 40.0
     prior_area: float = 0.03
-    bootstrap_candidates: int = 16
+    bootstrap_candidates: int = 32
     bootstrap_image_tests: int = 2
     changed_fraction_full: float = 0.03
 
@@ -252,15 +253,16 @@ class InformedPlanner:
         in_view = float(min(ok[0].mean(), ok[-1].mean()))
         area = float(np.mean([cv2.contourArea(cv2.convexHull(uv[k][ok[k]].astype(np.float32)))
                               if ok[k].sum() >= 3 else 0.0 for k in (0, -1)]))
-        tracks = []
-        for p in range(len(body)):
-            frames = np.flatnonzero(ok[:, p])
-            if len(frames) >= 4:
-                tracks.append((normalized_from_pixels(uv[frames, p], self.env.intrinsics), deltas[frames]))
-        if not tracks:
+        keep = ok.sum(axis=0) >= 4  # tracks of at least 4 frames, as the bundle adjustment takes
+        if not keep.any():
             return np.zeros((6, 6)), in_view, area
         axis, point = s.axis_and_point(q, joint)
-        info = pose_information(build_track_set([(axis, point, tracks)], self.env.intrinsics.focal), T)
+        frame, track = np.nonzero(ok[:, keep].T)[::-1]  # observations ordered by track, then frame
+        uv_kept = uv[:, keep][frame, track]
+        tracks = TrackSet(normalized_from_pixels(uv_kept, self.env.intrinsics), track.astype(np.int64),
+                          rotation_about_axis(axis, deltas)[frame], np.tile(point, (int(keep.sum()), 1)),
+                          np.zeros(int(keep.sum()), dtype=np.int64), self.env.intrinsics.focal)
+        info = pose_information(tracks, T)
         return info / c.noise_px**2 / len(body), in_view, area
 
     def expected_tracks(self, area_px: float) -> float:
@@ -437,19 +439,16 @@ class InformedPlanner:
     def _plan_bootstrap(self) -> dict[str, Any]:
         c = self.config
         posterior = self.view_direction_posterior()
-        valid: list[tuple[float, FloatArray, int, float]] = []
-        for _ in range(40 * c.bootstrap_candidates):
-            cand = self._random_candidate()
-            if cand is None or self.env.validate(*cand):
+        for _ in range(c.max_rounds):
+            drawn = [cand for cand in (self._random_candidate() for _ in range(c.bootstrap_candidates))
+                     if cand is not None]
+            ranked = sorted(((self.bootstrap_score(*cand, posterior), *cand) for cand in drawn),
+                            key=lambda v: -v[0])
+            valid = [v for v in ranked[:c.n_validate] if not self.env.validate(v[1], v[2], v[3])]
+            if not valid:
                 continue
-            q, joint, delta = cand
-            valid.append((self.bootstrap_score(q, joint, delta, posterior), q, joint, delta))
-            if len(valid) >= c.bootstrap_candidates:
-                break
-        if not valid:
-            raise InvalidInputError(f"no valid motion in {40 * c.bootstrap_candidates} random candidates")
-        valid.sort(key=lambda v: -v[0])
-        tested = [(v[0] * min(1.0, self._changed_fraction(v[1], v[2], v[3]) / c.changed_fraction_full), *v[1:])
-                  for v in valid[:c.bootstrap_image_tests]]
-        _, q, joint, delta = max(tested, key=lambda v: v[0]) if tested else valid[0]
-        return {"Q": q, "J": joint, "delta": np.array([delta])}
+            tested = [(v[0] * min(1.0, self._changed_fraction(v[1], v[2], v[3]) / c.changed_fraction_full), *v[1:])
+                      for v in valid[:c.bootstrap_image_tests]]
+            _, q, joint, delta = max(tested, key=lambda v: v[0]) if tested else valid[0]
+            return {"Q": q, "J": joint, "delta": np.array([delta])}
+        raise InvalidInputError(f"no valid motion in {c.max_rounds} rounds of {c.bootstrap_candidates} candidates")

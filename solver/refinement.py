@@ -193,6 +193,11 @@ class _Problem:
 
     def jacobian(self, x: FloatArray) -> sp.csr_matrix:
         """(2P, 6 + 3T) sparse Jacobian of ``residuals``."""
+        data = self.jacobian_blocks(x)
+        return sp.csr_matrix((data.ravel(), (self.rows, self.cols)), shape=self.shape)
+
+    def jacobian_blocks(self, x: FloatArray) -> FloatArray:
+        """(P, 2, 9): each observation's derivatives by (omega, tau) and by its own track's point q."""
         tr = self.tracks
         pc, R, t, q = self._camera_points(x)
         z = pc[:, 2]
@@ -205,8 +210,7 @@ class _Problem:
         M = np.einsum("ij,pjk,lk->pil", R, tr.rot, R)  # R Rot_k R^T
         d_omega = (-skew(pc - t) + M @ skew(q - t)) @ _left_jacobian(x[:3])
         d_tau = np.eye(3) - M
-        data = np.concatenate([dproj @ d_omega, dproj @ d_tau, dproj @ M], axis=2)
-        return sp.csr_matrix((data.ravel(), (self.rows, self.cols)), shape=self.shape)
+        return np.concatenate([dproj @ d_omega, dproj @ d_tau, dproj @ M], axis=2)
 
 
 @dataclass(frozen=True)
@@ -300,9 +304,15 @@ def pose_information(tracks: TrackSet, T_camera_base: FloatArray) -> FloatArray:
     if not ok.any():
         return np.zeros((6, 6))
     sub = _subset(tracks, ok)
-    problem = _Problem(sub, T_camera_base)
     q = points[ok] @ T_camera_base[:3, :3].T + T_camera_base[:3, 3]
-    S = _schur_information(problem.jacobian(np.concatenate([np.zeros(6), q.ravel()])))
+    blocks = _Problem(sub, T_camera_base).jacobian_blocks(np.concatenate([np.zeros(6), q.ravel()]))
+    Jp, Jx = blocks[:, :, :6], blocks[:, :, 6:]  # the same Schur complement as the sparse path, dense
+    U = np.einsum("pki,pkj->ij", Jp, Jp)
+    W = np.zeros((sub.n_tracks, 6, 3))
+    V = np.zeros((sub.n_tracks, 3, 3))
+    np.add.at(W, sub.track, np.einsum("pki,pkj->pij", Jp, Jx))
+    np.add.at(V, sub.track, np.einsum("pki,pkj->pij", Jx, Jx))
+    S = U - np.einsum("tij,tjk,tlk->il", W, np.linalg.inv(V + 1e-12 * np.eye(3)), W)
     return 0.5 * (S + S.T)
 
 
