@@ -103,7 +103,12 @@ def main(argv: list[str] | None = None) -> int:
                       help="keypoint noise, px (--synthetic and --oracle; default 0.5)")
     demo.add_argument("--outliers", type=float, default=0.1, help="fraction of bad tracks (--synthetic; default 0.1)")
     demo.add_argument("--stop-when-converged", action="store_true", help="stop at convergence")
+    demo.add_argument("--planner", choices=("random", "informed"), default="random",
+                      help="motion selection: random (the paper) or informed (ours; default random)")
     args = parser.parse_args(argv)
+    if args.synthetic and args.planner != "random":
+        print("arc-calib: --planner informed needs the MuJoCo scene (drop --synthetic)", file=sys.stderr)
+        return 2
     try:
         if args.synthetic:
             return _demo_synthetic(args)

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 
 from arc_env.env import ArcCalibEnv, EnvConfig
 from arc_env.scene import RobotSource, SceneConfig
+from planners.informed_planner import InformedPlanner
 from planners.random_planner import RandomPlanner
 from solver.errors import ArcCalibError, InvalidInputError
 from solver.frames import quaternion_xyzw_from_matrix
@@ -68,29 +69,31 @@ def run_demo(args: argparse.Namespace) -> int:
 
 def _episode(env: ArcCalibEnv, args: argparse.Namespace) -> int:
     obs, info = env.reset(seed=args.seed)
-    planner = RandomPlanner(env, np.random.default_rng(args.seed))
+    planner_name = getattr(args, "planner", "random")
+    planner = (InformedPlanner if planner_name == "informed" else RandomPlanner)(env, np.random.default_rng(args.seed))
     mode = "oracle keypoints" if args.oracle else "rendered pixels, optical-flow tracking"
     robot = env.config.scene.robot.path or "Franka Panda (gymnasium-robotics)"
     print(f"{robot}, camera {env.intrinsics.width}x{env.intrinsics.height} fx={env.intrinsics.K[0, 0]:.0f}, "
-          f"{mode}, random motions, seed {args.seed}")
+          f"{mode}, {planner_name} motions, seed {args.seed}")
     print(f"{'#':>3} {'joint':>5} {'delta':>6} {'frames':>6} {'tracks':>6} {'status':>9} {'stage':>8} "
           f"{'rot err':>9} {'trans err':>10} {'sec':>5}  note")
     started = time.perf_counter()
-    seconds = {"render": 0.0, "tracking": 0.0, "solver": 0.0}
+    seconds = {"planning": 0.0, "transit": 0.0, "render": 0.0, "tracking": 0.0, "solver": 0.0}
     for i in range(args.motions):
+        t0 = time.perf_counter()
         try:
             action = planner.plan(obs)
         except ArcCalibError as exc:
             print(f"arc-calib demo: the planner found no motion: {exc}", file=sys.stderr)
             break
-        t0 = time.perf_counter()
+        seconds["planning"] += time.perf_counter() - t0
         obs, reward, terminated, truncated, info = env.step(action)
         if info["refused"]:  # the planner checks validity, so this is a bug if it happens
             print(f"{i + 1:>3} refused: {info['refused']}")
             continue
         m = info["motion"]
-        for k in seconds:
-            seconds[k] += env.last_seconds.get(k, 0.0)
+        for k in env.last_seconds:
+            seconds[k] = seconds.get(k, 0.0) + env.last_seconds[k]
         note = m["reason"] or (f"no axis (bundle adjustment only): {m['stage_one']}" if m["stage_one"] else "")
         note = note or (info["message"] if info["T_camera_base"] is None else "")
         rot = np.nan if info["rot_error_rad"] is None else info["rot_error_rad"]
@@ -107,8 +110,8 @@ def _episode(env: ArcCalibEnv, args: argparse.Namespace) -> int:
     s = cal.state
     print()
     print(f"motions: {len(cal.reports)} executed, {s.n_accepted} accepted, {s.n_rejected} rejected; "
-          f"{total:.1f} s (render {seconds['render']:.1f}, tracking {seconds['tracking']:.1f}, "
-          f"solver {seconds['solver']:.1f})")
+          f"{total:.1f} s (planning {seconds['planning']:.1f}, transit {seconds['transit']:.1f}, "
+          f"render {seconds['render']:.1f}, tracking {seconds['tracking']:.1f}, solver {seconds['solver']:.1f})")
     for r in cal.reports:
         if not r.accepted:
             print(f"  motion {r.index + 1} (joint {r.joint + 1}) rejected: {r.reason}")

@@ -34,6 +34,21 @@ def test_demo_with_overlay(tmp_path, capsys):
     assert image is not None and image.shape == (540, 960, 3)
 
 
+def test_demo_with_the_informed_planner(capsys):
+    code = main(["demo", "--oracle", "--width", "320", "--height", "180", "--motions", "6", "--seed", "2",
+                 "--planner", "informed"])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    assert "informed motions" in text and "final error" in text
+    final = re.search(r"final error: rotation ([0-9.e+-]+) rad .*translation ([0-9.]+) mm", text)
+    assert float(final.group(1)) < 0.01 and float(final.group(2)) < 10.0
+
+
+def test_demo_synthetic_refuses_the_informed_planner(capsys):
+    assert main(["demo", "--synthetic", "--planner", "informed"]) == 2
+    assert "MuJoCo scene" in capsys.readouterr().err
+
+
 def test_demo_without_enough_motions_exits_nonzero(capsys):
     code = main(["demo", "--oracle", "--width", "320", "--height", "180", "--motions", "1"])
     text = capsys.readouterr().out
