@@ -321,7 +321,7 @@ def main(argv: list[str] | None = None) -> int:
         elif m == "informed":
             cls, why = informed_planner()
             if cls is None:
-                print(f"informed: not available, left out: {why}")
+                print(f"informed: not available, left out: {why}", flush=True)
                 continue
             runners[m] = lambda p, s, cls=cls: run_arc(cls, p, s, args)
         else:
@@ -330,10 +330,10 @@ def main(argv: list[str] | None = None) -> int:
         print("no method to run")
         return 1
     print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, {args.width}x{args.height}, "
-          f"methods {', '.join(runners)}, IoU at {args.iou_configs} configurations")
+          f"methods {', '.join(runners)}, IoU at {args.iou_configs} configurations", flush=True)
     checkpoints = [k for k in CHECKPOINTS if k <= args.motions]
     print(f"{'method':>8} {'pose':>4} {'seed':>4} " + " ".join(f"{'@' + str(k):>19}" for k in checkpoints)
-          + f" {'IoU':>6} {'sec':>6}  note")
+          + f" {'IoU':>6} {'sec':>6}  note", flush=True)
     runs: dict[str, list[dict]] = {m: [] for m in runners}
     ious: dict[str, list[float]] = {m: [] for m in runners}
     for pose in range(args.poses):
