@@ -12,6 +12,10 @@ board. The printed face is the board's z = 0 plane and faces -z. The MuJoCo body
 ``BOARD_BODY`` has exactly this frame, so ``solvePnP`` on a rendered image returns the pose of
 that body (``tests/arc_env/test_marker_baseline.py`` checks it).
 
+The board body hangs under the robot's base body, so ``Scene.robot_mask`` counts it as robot and the
+collision checker checks it against the other links, the floor and the camera mount (not against
+the hand it is fixed to). Mask studies use the scene without the board.
+
 Texture mapping (measured, MuJoCo 3.x/4.x): a 2-D texture on a box is projected along the box's
 local z and spans the face once (``texrepeat = 1, 1``); MuJoCo's texture rows run bottom-up, so the
 image is flipped vertically before it is handed over.
