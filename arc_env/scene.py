@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from arc_env.camera import fovy_from_intrinsics, mujoco_camera_from_optical
+from arc_env.marker_board import MarkerBoard, add_marker_board, restore_board_material
 from solver.camera import in_image, pixels_from_camera_points
 from solver.errors import InvalidInputError
 from solver.frames import check_transform, transform_from_rt
@@ -99,6 +100,8 @@ class SceneConfig:
         speckle_density: fraction of texels that are dark marks.
         obstacles: static boxes.
         camera_mount: add a camera housing and tripod pole as collision geometry.
+        marker_board: a ChArUco board fixed to the robot (the marker baseline's scene,
+            ``arc_env.marker_board``); None (default) for the markerless scene.
     """
 
     robot: RobotSource = field(default_factory=RobotSource)
@@ -112,6 +115,7 @@ class SceneConfig:
     speckle_density: float = 0.06
     obstacles: tuple[Obstacle, ...] = ()
     camera_mount: bool = True
+    marker_board: MarkerBoard | None = None
 
     def __post_init__(self) -> None:
         if self.width < 16 or self.height < 16:
@@ -254,6 +258,8 @@ class Scene:
             setattr(spec, attr, getattr(robot, attr))  # avoid MuJoCo's attach-conflict warnings
         frame = spec.worldbody.add_frame()
         frame.attach_body(base, "", "")  # keep the robot's own names
+        if self.config.marker_board is not None:
+            add_marker_board(spec, self.config.marker_board)
         try:
             with warnings.catch_warnings():
                 warnings.filterwarnings("ignore", message="Attaching a spec with an empty prefix")
@@ -264,6 +270,8 @@ class Scene:
         self.base_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, source.base_body)
         self.robot_bodies = _subtree(m, self.base_body)
         self._set_up_robot_geoms()
+        if self.config.marker_board is not None:
+            restore_board_material(m)  # the speckle paint is for the robot, not the board
         self.arm_joints = self._arm_joints(source, where)
         self.n_joints = len(self.arm_joints)
         self.qpos_adr = np.array([m.jnt_qposadr[j] for j in self.arm_joints])

@@ -1,0 +1,42 @@
+"""scripts/reproduce_paper.py: a tiny run of the marker method, and a missing method left out, not faked."""
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "reproduce_paper.py"
+
+
+@pytest.fixture(scope="module")
+def script():
+    spec = importlib.util.spec_from_file_location("reproduce_paper", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_missing_informed_planner_is_reported_and_left_out(script, tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "planners.informed_planner", None)  # makes the import fail
+    out = tmp_path / "figures.json"
+    code = script.main(["--methods", "informed,marker", "--poses", "1", "--seeds", "1", "--motions", "3",
+                        "--width", "960", "--height", "540", "--iou-configs", "1", "--out", str(tmp_path),
+                        "--json", str(out)])
+    assert code == 0
+    assert "informed: not available" in capsys.readouterr().out
+    figures = json.loads(out.read_text())
+    assert list(figures) == ["methods"] and list(figures["methods"]) == ["marker"]
+    marker = figures["methods"]["marker"]
+    assert set(marker) == {"errors", "iou_mean"} and list(marker["errors"]) == ["3", "10", "25"]
+    assert marker["errors"]["3"]["rot_median_rad"] is not None  # three board poses give an estimate
+    assert marker["errors"]["25"] == {"rot_median_rad": None, "trans_median_m": None}  # beyond --motions
+    assert 0.0 <= marker["iou_mean"] <= 1.0
+    for name in ("errors.png", "iou.png", "results.md"):
+        assert (tmp_path / name).stat().st_size > 0
+
+
+def test_unknown_method_is_an_error(script):
+    with pytest.raises(SystemExit):
+        script.main(["--methods", "apriltag"])
