@@ -29,6 +29,16 @@ PAPER_ROTATION_RAD = 0.0042
 PAPER_TRANSLATION_M = 0.0065
 
 
+def benchmark_camera_pose(index: int, target: tuple[float, float, float] = (0.3, 0.0, 0.45)) -> FloatArray:
+    """Camera pose number ``index`` of the benchmark scripts, the same in every script, mode and method.
+
+    Returns:
+        (4, 4) float64 T_camera_base, sampled like ``reset`` does (``sample_camera_pose``) from a
+        generator seeded with 1000 + index, looking at ``target`` (m, base frame).
+    """
+    return sample_camera_pose(np.random.default_rng(1000 + index), target=np.asarray(target, dtype=np.float64))
+
+
 @dataclass(frozen=True)
 class EnvConfig:
     """Settings of ``ArcCalibEnv`` (see its docstring for what they do to an episode).

@@ -23,19 +23,14 @@ from pathlib import Path
 import numpy as np
 
 import arc_env  # noqa: F401  (chooses the GL backend before MuJoCo loads)
-from arc_env.env import ArcCalibEnv, EnvConfig
+from arc_env.env import ArcCalibEnv, EnvConfig, benchmark_camera_pose
 from arc_env.scene import SceneConfig
 from planners.random_planner import RandomPlanner
-from solver import sample_camera_pose
 
 CHECKPOINTS = (3, 10, 25)
 TARGET_25 = (0.001, 0.0015)  # rad, m: issue 3's target for tracked runs at 25 motions
 PAPER_25 = (0.0042, 0.0065)  # rad, m: the paper's simulation result
 
-
-def camera_pose(pose: int, target: tuple[float, float, float]) -> np.ndarray:
-    """The fixed camera pose number ``pose`` (the same for every run and both modes)."""
-    return sample_camera_pose(np.random.default_rng(1000 + pose), target=np.asarray(target))
 
 
 def run_episode(pose: int, seed: int, n_motions: int, oracle: bool, width: int, height: int) -> dict:
@@ -48,7 +43,7 @@ def run_episode(pose: int, seed: int, n_motions: int, oracle: bool, width: int, 
     try:
         started = time.perf_counter()
         obs, _ = env.reset(seed=1000 * pose + seed,
-                           options={"camera_pose": camera_pose(pose, config.camera_target)})
+                           options={"camera_pose": benchmark_camera_pose(pose, config.camera_target)})
         planner = RandomPlanner(env, np.random.default_rng(1000 * pose + seed))
         for i in range(1, n_motions + 1):
             t0 = time.perf_counter()

@@ -24,21 +24,18 @@ import json
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
+from reproduce_paper import error_plot  # scripts/ is on sys.path when run as a script
 
 import arc_env  # noqa: F401  (chooses the GL backend before MuJoCo loads)
-from arc_env.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M, ArcCalibEnv, EnvConfig
+from arc_env.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M, ArcCalibEnv, EnvConfig, benchmark_camera_pose
 from arc_env.scene import SceneConfig
 from planners.informed_planner import InformedPlanner
 from planners.random_planner import RandomPlanner
-from solver import sample_camera_pose
 
 PLANNERS = {"random": RandomPlanner, "informed": InformedPlanner}
 
-
-def camera_pose(pose: int, target: tuple[float, float, float]) -> np.ndarray:
-    """The fixed camera pose number ``pose`` (the same as ``bench_episode.py``'s)."""
-    return sample_camera_pose(np.random.default_rng(1000 + pose), target=np.asarray(target))
 
 
 def run_episode(planner_name: str, pose: int, seed: int, n_motions: int, width: int, height: int) -> dict:
@@ -50,7 +47,7 @@ def run_episode(planner_name: str, pose: int, seed: int, n_motions: int, width: 
     try:
         started = time.perf_counter()
         obs, _ = env.reset(seed=1000 * pose + seed,
-                           options={"camera_pose": camera_pose(pose, config.camera_target)})
+                           options={"camera_pose": benchmark_camera_pose(pose, config.camera_target)})
         planner = PLANNERS[planner_name](env, np.random.default_rng(1000 * pose + seed))
         while len(out["errors"]) < n_motions:
             t0 = time.perf_counter()
@@ -102,32 +99,14 @@ def summarize(runs: list[dict], n_motions: int) -> dict:
             "refused": int(sum(r["refused"] for r in runs))}
 
 
-def plot(summary: dict, n_motions: int, path: Path, title: str) -> None:
+def plot(summary: dict, n_motions: int, path: Path) -> None:
     """Median rotation and translation error against motions, both planners (the paper's Fig. 7)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
-    ks = np.arange(1, n_motions + 1)
-    for name, style in (("random", "o-"), ("informed", "s-")):
-        e = summary[name]["errors"]
-        rot = np.array([e[str(k)]["rot_median_rad"] for k in ks], dtype=float)
-        trans = np.array([e[str(k)]["trans_median_m"] for k in ks], dtype=float)
-        axes[0].semilogy(ks, np.where(np.isfinite(rot), rot, np.nan), style, ms=3, label=name)
-        axes[1].semilogy(ks, np.where(np.isfinite(trans), trans, np.nan), style, ms=3, label=name)
-    axes[0].axhline(PAPER_ROTATION_RAD, color="grey", ls="--", lw=1, label="paper accuracy")
-    axes[1].axhline(PAPER_TRANSLATION_M, color="grey", ls="--", lw=1, label="paper accuracy")
-    axes[0].set(xlabel="motions", ylabel="median rotation error (rad)")
-    axes[1].set(xlabel="motions", ylabel="median translation error (m)")
-    for ax in axes:
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
-    fig.suptitle(title)
+    curves = {name: {"rot": [summary[name]["errors"][str(k)]["rot_median_rad"] for k in range(1, n_motions + 1)],
+                     "trans": [summary[name]["errors"][str(k)]["trans_median_m"] for k in range(1, n_motions + 1)]}
+              for name in PLANNERS}
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    if not cv2.imwrite(str(path), error_plot(curves)):
+        raise OSError(f"OpenCV could not write {path}")
 
 
 def _clean(x: object) -> object:
@@ -190,8 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"informed reaches paper accuracy in fewer motions than random on "
           f"{summary['informed_fewer_motions_fraction']:.0%} of {len(fewer)} runs "
           f"(targets: informed median <= 6 motions, fewer on >= 80% of runs, planning <= 1 s, 0 collisions)")
-    plot(summary, args.motions, args.plot,
-         f"{args.poses} poses x {args.seeds} seeds, {args.width}x{args.height}, rendered + tracked")
+    plot(summary, args.motions, args.plot)
     print(f"plot: {args.plot}")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

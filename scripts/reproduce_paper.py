@@ -39,12 +39,11 @@ import numpy as np
 
 import arc_env  # noqa: F401  (chooses the GL backend before MuJoCo loads)
 from arc_env.demo import mask_iou
-from arc_env.env import ArcCalibEnv, EnvConfig
+from arc_env.env import ArcCalibEnv, EnvConfig, benchmark_camera_pose
 from arc_env.marker_baseline import MarkerBaseline
 from arc_env.marker_board import MarkerBoard
 from arc_env.scene import SceneConfig
 from planners.random_planner import RandomPlanner
-from solver import sample_camera_pose
 from solver.errors import ArcCalibError
 
 CHECKPOINTS = (3, 10, 25)
@@ -55,10 +54,6 @@ PAPER_SIM = {3: (0.0225, 0.0786), 25: (0.0042, 0.0065)}
 PAPER_IOU = {"ARC-Calib": 0.94, "AprilTag hand-eye": 0.84}
 COLOURS = {"random": (200, 110, 30), "informed": (40, 160, 40), "marker": (40, 40, 210), "paper": (0, 0, 0)}
 
-
-def camera_pose(pose: int, target: tuple[float, float, float]) -> np.ndarray:
-    """The fixed camera pose number ``pose`` (the same as ``bench_episode.py``'s)."""
-    return sample_camera_pose(np.random.default_rng(1000 + pose), target=np.asarray(target))
 
 
 def informed_planner() -> tuple[type | None, str]:
@@ -81,7 +76,7 @@ def _scene(args: argparse.Namespace, board: bool = False) -> SceneConfig:
 
 def _reset(env: ArcCalibEnv, pose: int, seed: int) -> dict:
     obs, _ = env.reset(seed=1000 * pose + seed,
-                       options={"camera_pose": camera_pose(pose, env.config.camera_target)})
+                       options={"camera_pose": benchmark_camera_pose(pose, env.config.camera_target)})
     return obs
 
 
