@@ -5,8 +5,7 @@ seed (5 by default), at 1920x1080:
 
 * ``random``: ARC-Calib in ``ArcCalib-v0`` with ``RandomPlanner`` (the paper's selection), ``--motions``
   exploratory motions, rendered pixels and optical-flow tracking; the true error after every motion.
-* ``informed``: the same with ``planners.informed_planner.InformedPlanner`` when that module exists;
-  otherwise the method is reported as not available and left out of the table, plots and JSON.
+* ``informed``: the same with ``planners.informed_planner.InformedPlanner`` (ours).
 * ``marker``: ``arc_env.marker_baseline``: a ChArUco board on the flange, ``--motions`` board poses,
   OpenCV detection + PnP, eye-to-hand by Shah's method; "n motions" = the first n board poses.
 
@@ -43,6 +42,7 @@ from arc_env.env import ArcCalibEnv, EnvConfig, benchmark_camera_pose
 from arc_env.marker_baseline import MarkerBaseline
 from arc_env.marker_board import MarkerBoard
 from arc_env.scene import SceneConfig
+from planners.informed_planner import InformedPlanner
 from planners.random_planner import RandomPlanner
 from solver.errors import ArcCalibError
 
@@ -54,20 +54,6 @@ PAPER_SIM = {3: (0.0225, 0.0786), 25: (0.0042, 0.0065)}
 PAPER_IOU = {"ARC-Calib": 0.94, "AprilTag hand-eye": 0.84}
 COLOURS = {"random": (200, 110, 30), "informed": (40, 160, 40), "marker": (40, 40, 210), "paper": (0, 0, 0)}
 
-
-
-def informed_planner() -> tuple[type | None, str]:
-    """The InformedPlanner class, or None and why it is not available."""
-    import planners
-
-    try:
-        from planners import informed_planner
-    except ImportError as exc:
-        return None, f"planners.informed_planner does not import ({exc})"
-    here = Path(planners.__file__).parent
-    if Path(informed_planner.__file__).parent != here:  # e.g. an editable install of another checkout
-        return None, f"planners.informed_planner was found outside this tree ({informed_planner.__file__})"
-    return informed_planner.InformedPlanner, ""
 
 
 def _scene(args: argparse.Namespace, board: bool = False) -> SceneConfig:
@@ -314,11 +300,7 @@ def main(argv: list[str] | None = None) -> int:
         if m == "random":
             runners[m] = lambda p, s: run_arc(RandomPlanner, p, s, args)
         elif m == "informed":
-            cls, why = informed_planner()
-            if cls is None:
-                print(f"informed: not available, left out: {why}", flush=True)
-                continue
-            runners[m] = lambda p, s, cls=cls: run_arc(cls, p, s, args)
+            runners[m] = lambda p, s: run_arc(InformedPlanner, p, s, args)
         else:
             runners[m] = lambda p, s: run_marker(p, s, args)
     if not runners:

@@ -1,8 +1,7 @@
-"""scripts/reproduce_paper.py: a tiny run of the marker method, and a missing method left out, not faked."""
+"""scripts/reproduce_paper.py: a tiny run of the marker method writes the table, plots and JSON keys."""
 
 import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
@@ -18,14 +17,12 @@ def script():
     return module
 
 
-def test_missing_informed_planner_is_reported_and_left_out(script, tmp_path, monkeypatch, capsys):
-    monkeypatch.setitem(sys.modules, "planners.informed_planner", None)  # makes the import fail
+def test_tiny_marker_run_writes_the_figures(script, tmp_path):
     out = tmp_path / "figures.json"
-    code = script.main(["--methods", "informed,marker", "--poses", "1", "--seeds", "1", "--motions", "3",
+    code = script.main(["--methods", "marker", "--poses", "1", "--seeds", "1", "--motions", "3",
                         "--width", "960", "--height", "540", "--iou-configs", "1", "--out", str(tmp_path),
                         "--json", str(out)])
     assert code == 0
-    assert "informed: not available" in capsys.readouterr().out
     figures = json.loads(out.read_text())
     assert list(figures) == ["methods"] and list(figures["methods"]) == ["marker"]
     marker = figures["methods"]["marker"]
