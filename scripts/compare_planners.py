@@ -11,9 +11,9 @@ Fig. 7) and, with ``--json PATH``:
  "planning_seconds_median": {"random": ..., "informed": ...}}
 plus "planning_seconds_max" and, per planner, "executed_in_collision" (executed sweeps and transits
 that a 2 mm re-check finds colliding) and "refused" (actions the env refused). "Paper accuracy" is
-rotation <= 0.0042 rad and translation <= 6.5 mm; a run reaches it at the first motion whose estimate is within both. A run
-that never does counts as infinitely many motions (null in the JSON when that is the median); a
-motion count without an estimate counts as an infinite error. Planning seconds are per call, on
+rotation <= 0.0042 rad and translation <= 6.5 mm; a run reaches it at the first motion whose estimate
+is within both. A run that never does counts as infinitely many motions (null in the JSON when that
+is the median); a motion count without an estimate counts as an infinite error. Planning seconds are per call, on
 one core (``OMP_NUM_THREADS``/BLAS threads are not restricted: set them to 1 for a strict figure).
 """
 
