@@ -22,6 +22,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,7 +37,7 @@ from arc_env.tracking import TrackerConfig, track_keypoints
 from solver.errors import ArcCalibError, InvalidInputError
 from solver.frames import check_transform, pose_errors, quaternion_xyzw_from_matrix
 from solver.observations import MotionObservation
-from solver.pipeline import Calibrator, CalibratorConfig
+from solver.pipeline import Calibrator, CalibratorConfig, MotionReport
 
 #: Result file format written by ``calibrate``.
 RESULT_FORMAT = "arc-calib result 1"
@@ -81,12 +82,21 @@ class MotionDiagnostic:
 
 @dataclass
 class CalibrationRun:
-    """A finished calibration of a recording."""
+    """A finished calibration: of a recording, or online through a driver.
 
-    recording: Recording
+    Attributes:
+        source: what was calibrated (the recording's path, or the driver).
+        calibrator: the calibrator after its last update.
+        diagnostics: one per motion, in order.
+        seconds: wall time per part of the work.
+        recording: the recording (None online).
+    """
+
+    source: str
     calibrator: Calibrator
     diagnostics: list[MotionDiagnostic]
     seconds: dict[str, float] = field(default_factory=dict)
+    recording: Recording | None = None
 
     @property
     def n_accepted(self) -> int:
@@ -146,13 +156,17 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
         calibrator.update()
         seconds["solver"] += time.perf_counter() - t0
     for r in calibrator.reports:
-        d = by_report[r.index]
-        d.accepted, d.inlier_tracks, d.linear = r.accepted, r.n_inlier_tracks, r.linear
-        d.reason = r.reason
-        d.axis_error_rad, d.plane_distance_m = r.eps_a, r.eps_d
-        d.note = f"no axis for the linear stage: {r.stage_one}" if r.stage_one and r.accepted else ""
+        copy_report(r, by_report[r.index])
     seconds["total"] = time.perf_counter() - started
-    return CalibrationRun(recording, calibrator, diagnostics, seconds)
+    return CalibrationRun(str(recording.path), calibrator, diagnostics, seconds, recording)
+
+
+def copy_report(report: MotionReport, diag: MotionDiagnostic) -> None:
+    """Fill a diagnostic from the calibrator's final report on that motion."""
+    diag.accepted, diag.inlier_tracks, diag.linear = report.accepted, report.n_inlier_tracks, report.linear
+    diag.reason = report.reason
+    diag.axis_error_rad, diag.plane_distance_m = report.eps_a, report.eps_d
+    diag.note = f"no axis for the linear stage: {report.stage_one}" if report.stage_one and report.accepted else ""
 
 
 def unusable_reason(run: CalibrationRun, criteria: UsableCriteria) -> str:
@@ -178,7 +192,7 @@ def result_dict(run: CalibrationRun, edge: ParentChild, exports: dict[str, Path]
     T = s.T_camera_base
     return {
         "format": RESULT_FORMAT,
-        "recording": str(run.recording.path),
+        "source": run.source,
         "convention": ("p_camera = T_camera_base @ p_base; camera frame = OpenCV optical frame (x right, y down, "
                        "z forward); metres, radians; quaternions (x, y, z, w)"),
         "T_camera_base": T.tolist(),
@@ -213,6 +227,7 @@ def render_overlays(run: CalibrationRun, out_dir: Path, n_motions: int = 4) -> d
         {path in out_dir: PNG bytes}; nothing is written here.
     """
     rec = run.recording
+    assert rec is not None
     T = run.calibrator.state.T_camera_base
     projector = RobotProjector(rec.scene, rec.intrinsics)
     accepted = [m for m, d in zip(rec.motions, run.diagnostics, strict=True) if d.accepted]
@@ -243,12 +258,8 @@ def _read_ground_truth(path: Path) -> np.ndarray:
 
 def run_calibrate(args: argparse.Namespace) -> int:
     """``arc-calib calibrate`` from parsed arguments; returns the exit code (0 only for a usable result)."""
-    criteria = UsableCriteria(min_motions=args.min_motions, max_std_deg=args.max_std_deg, max_std_mm=args.max_std_mm)
-    output = Path(args.output)
-    if output.suffix != ".json":
-        raise InvalidInputError(f"--output must be a .json file, got {output}")
-    if not output.parent.is_dir():
-        raise InvalidInputError(f"--output: directory {output.parent} does not exist")
+    UsableCriteria(min_motions=args.min_motions, max_std_deg=args.max_std_deg, max_std_mm=args.max_std_mm)
+    check_output(Path(args.output))
     truth = _read_ground_truth(Path(args.ground_truth)) if args.ground_truth else None
     started = time.perf_counter()
     recording = read_recording(args.recording)
@@ -262,31 +273,42 @@ def run_calibrate(args: argparse.Namespace) -> int:
         print(f"note: joints.csv columns ignored (not hinge joints of the arm): {list(recording.ignored_joints)}",
               file=sys.stderr)
     run = calibrate_recording(recording, progress=not args.quiet)
-    s = run.calibrator.state
+    overlays = (lambda: render_overlays(run, Path(args.overlay))) if args.overlay else None
+    return finish(run, args, args.base_frame or recording.base_body, overlays, truth, started)
 
+
+def finish(run: CalibrationRun, args: argparse.Namespace, base_frame: str,
+           overlays: Callable[[], dict[Path, bytes]] | None, truth: np.ndarray | None, started: float) -> int:
+    """Print the per-motion table; if the result is usable, write it with its exports and print it.
+
+    ``args`` carries output, camera_frame, min_motions, max_std_deg, max_std_mm (and ground_truth for
+    the message). Returns the exit code: 0 written, 1 not usable (nothing written).
+    """
+    criteria = UsableCriteria(min_motions=args.min_motions, max_std_deg=args.max_std_deg, max_std_mm=args.max_std_mm)
+    output = Path(args.output)
+    s = run.calibrator.state
     print(f"{'motion':>6} {'joint':>22} {'frames':>6} {'tracks':>6} {'status':>9}  reason / note")
     for d in run.diagnostics:
         status = "accepted" if d.accepted else "rejected"
         print(f"{d.motion:>6} {(d.joint or '-')[-22:]:>22} {d.frames:>6} {d.tracks:>6} {status:>9}  "
               f"{(d.reason or d.note)[:90]}")
+    parts = ", ".join(f"{k} {v:.1f}" for k, v in run.seconds.items() if k != "total")
     print(f"motions: {len(run.diagnostics)}, accepted {run.n_accepted}, rejected "
-          f"{len(run.diagnostics) - run.n_accepted}; {run.seconds['total']:.1f} s (decode "
-          f"{run.seconds['decode']:.1f}, tracking {run.seconds['tracking']:.1f}, solver {run.seconds['solver']:.1f})")
+          f"{len(run.diagnostics) - run.n_accepted}; {run.seconds.get('total', 0.0):.1f} s ({parts})")
     why = unusable_reason(run, criteria)
     if why:
         print(f"no usable calibration: {why}. Nothing written.")
         return 1
     T = s.T_camera_base
-    base_frame = args.base_frame or recording.base_body
     edge = ParentChild.from_T_camera_base(T, base_frame, args.camera_frame)
     exports = export_paths(output)
     result = result_dict(run, edge, exports)
-    texts = {p: t for p, t in zip(exports.values(), export_texts(edge).values(), strict=True)}
+    texts: dict[Path, str | bytes] = dict(zip(exports.values(), export_texts(edge).values(), strict=True))
     texts[output] = json.dumps(result, indent=2) + "\n"
-    overlays = render_overlays(run, Path(args.overlay)) if args.overlay else {}
-    if overlays:
-        Path(args.overlay).mkdir(parents=True, exist_ok=True)
-    write_files_atomic({**texts, **overlays})
+    images = overlays() if overlays is not None else {}
+    if images:
+        next(iter(images)).parent.mkdir(parents=True, exist_ok=True)
+    write_files_atomic({**texts, **images})
 
     np.set_printoptions(precision=6, suppress=True)
     print(f"T_camera_base ({s.stage}; p_camera = T_camera_base @ p_base, OpenCV optical frame):")
@@ -296,12 +318,11 @@ def run_calibrate(args: argparse.Namespace) -> int:
           f"{s.rms_px:.3f} px; converged: {s.converged}")
     if truth is not None:
         rot, trans = pose_errors(T, truth)
-        print(f"error against {args.ground_truth}: rotation {rot:.2e} rad ({np.degrees(rot):.4f} deg), "
-              f"translation {trans * 1e3:.3f} mm")
+        print(f"true error: rotation {rot:.2e} rad ({np.degrees(rot):.4f} deg), translation {trans * 1e3:.3f} mm")
     print(f"wrote {output}")
     for key, path in exports.items():
         print(f"wrote {path} ({key})")
-    for path in overlays:
+    for path in images:
         print(f"wrote {path} (overlay)")
     print(f"TF (parent {edge.base_frame} -> child {edge.camera_frame}, the OpenCV optical frame; "
           f"T_base_camera = inv(T_camera_base)):")
@@ -310,12 +331,18 @@ def run_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The ``arc-calib calibrate`` options."""
-    parser.add_argument("recording", help="the recording directory (docs/recording-format.md)")
+def check_output(output: Path) -> None:
+    """Refuse an output path that cannot be written (before any work is done)."""
+    if output.suffix != ".json":
+        raise InvalidInputError(f"--output must be a .json file, got {output}")
+    if not output.parent.is_dir():
+        raise InvalidInputError(f"--output: directory {output.parent} does not exist")
+
+
+def add_result_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options shared by ``calibrate`` and ``run``: output, frames, usability."""
     parser.add_argument("--output", "-o", required=True, help="result JSON; exports are written beside it")
-    parser.add_argument("--overlay", metavar="DIR", help="write PNGs of the robot drawn with the estimate here")
-    parser.add_argument("--base-frame", help="TF name of the robot base (default: robot.json's base body)")
+    parser.add_argument("--base-frame", help="TF name of the robot base (default: the model's base body)")
     parser.add_argument("--camera-frame", default=DEFAULT_CAMERA_FRAME,
                         help=f"TF name of the camera's OpenCV optical frame (default {DEFAULT_CAMERA_FRAME})")
     parser.add_argument("--min-motions", type=int, default=UsableCriteria.min_motions,
@@ -324,6 +351,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"largest 1-sigma rotation per axis, deg (default {UsableCriteria.max_std_deg})")
     parser.add_argument("--max-std-mm", type=float, default=UsableCriteria.max_std_mm,
                         help=f"largest 1-sigma translation per axis, mm (default {UsableCriteria.max_std_mm})")
+    parser.add_argument("--quiet", "-q", action="store_true", help="no per-motion progress on stderr")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The ``arc-calib calibrate`` options."""
+    parser.add_argument("recording", help="the recording directory (docs/recording-format.md)")
+    add_result_arguments(parser)
+    parser.add_argument("--overlay", metavar="DIR", help="write PNGs of the robot drawn with the estimate here")
     parser.add_argument("--ground-truth", metavar="FILE",
                         help="a <recording>.ground_truth.json (simulated recordings): also print the true error")
-    parser.add_argument("--quiet", "-q", action="store_true", help="no per-motion progress on stderr")

@@ -48,6 +48,7 @@ class RecordSettings:
         fx: focal length, px (None: 1380 scaled with the width, a D415-like camera).
         dist: OpenCV distortion of the simulated camera ((0,): none).
         video: one MP4 per motion instead of PNG frames.
+        fps: camera frame rate, Hz (the joint turns at 1 rad/s, so this sets the frames per motion).
         robot: the robot.
     """
 
@@ -59,6 +60,7 @@ class RecordSettings:
     fx: float | None = None
     dist: tuple[float, ...] = ()
     video: bool = False
+    fps: float = 30.0
     robot: RobotSource = RobotSource()
 
 
@@ -82,7 +84,7 @@ def record_episode(settings: RecordSettings, progress: bool = True) -> dict:
     render_fx = distorter.pinhole.K[0, 0] if distorter else fx
     scene = SceneConfig(robot=s.robot, width=s.width, height=s.height, fx=render_fx)
     env = ArcCalibEnv(EnvConfig(scene=scene, max_motions=s.motions, oracle_keypoints=True,
-                                terminate_on_convergence=False))
+                                terminate_on_convergence=False, fps=s.fps))
     writer: RecordingWriter | None = None
     try:
         obs, _ = env.reset(seed=s.seed)
@@ -140,7 +142,8 @@ def run_record(args: argparse.Namespace) -> int:
     robot = RobotSource(path=args.robot, base_body=args.base_body, home=()) if args.robot else RobotSource()
     dist = tuple(parse_dist(args.dist)) if args.dist else ()
     settings = RecordSettings(out=Path(args.out), motions=args.motions, seed=args.seed, width=args.width,
-                              height=args.height, fx=args.fx, dist=dist, video=args.video, robot=robot)
+                              height=args.height, fx=args.fx, dist=dist, video=args.video, fps=args.fps,
+                              robot=robot)
     started = time.perf_counter()
     truth = record_episode(settings)
     print(f"wrote {settings.out} ({settings.motions} motions, {settings.width}x{settings.height}, "
