@@ -36,7 +36,10 @@ def load_driver(spec: str) -> RobotDriver:
         factory = getattr(importlib.import_module(module_name), attr)
     except (ImportError, AttributeError) as exc:
         raise InvalidInputError(f"--driver {spec}: cannot load it: {exc}") from exc
-    driver = factory()
+    try:
+        driver = factory()
+    except Exception as exc:  # the user's code: report it, do not crash
+        raise InvalidInputError(f"--driver {spec}: constructing it failed: {type(exc).__name__}: {exc}") from exc
     missing = [name for name in ("robot", "joint_names", "intrinsics", "joint_limits", "move_to", "sweep")
                if not hasattr(driver, name)]
     if missing:

@@ -554,8 +554,8 @@ class Distorter:
 
         uv = normalized_from_pixels(grid, target)
         half = np.array([(w - 1) / 2, (h - 1) / 2])
-        reach = np.max(np.abs(uv) / half[None, :], axis=0)  # |normalized coordinate| per pixel of half-size
-        fx = float(min(target.K[0, 0], target.K[1, 1], 0.98 / reach.max()))
+        reach = np.max(np.abs(uv), axis=0)  # largest |normalized coordinate| per axis
+        fx = float(min(target.K[0, 0], target.K[1, 1], *((half - 0.5) / reach)))  # half a pixel inside
         self.pinhole = CameraIntrinsics.from_fov(fx, w, h)
         K = self.pinhole.K
         self.map_x = (K[0, 0] * uv[:, 0] + K[0, 2]).reshape(h, w).astype(np.float32)
