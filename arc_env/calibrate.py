@@ -172,6 +172,9 @@ def copy_report(report: MotionReport, diag: MotionDiagnostic) -> None:
 def unusable_reason(run: CalibrationRun, criteria: UsableCriteria) -> str:
     """"" when the result is usable, else why not."""
     s = run.calibrator.state
+    if not run.calibrator.reports:
+        return (f"none of the {len(run.diagnostics)} motions gave keypoint tracks (pruned, or nothing moved "
+                "in the images: is the robot in view?)")
     if s.T_camera_base is None:
         return f"no estimate: {s.message}"
     if s.stage != "refined" or s.std is None:

@@ -18,10 +18,14 @@ import pytest
 from arc_env.cli import main
 from arc_env.record import RecordSettings, ground_truth_path, record_episode
 from arc_env.recording import Distorter, read_recording
+from arc_env.robots import arm_urdf, forward_axes, random_arm
+from arc_env.scene import RobotSource
 from solver.camera import normalized_from_pixels
 from solver.errors import InvalidInputError
 from solver.observations import CameraIntrinsics
 
+#: rad and m: how closely a model survives MuJoCo's MJCF export into the recording.
+EXPORT_PRECISION = 1e-6
 TINY = {"motions": 4, "width": 320, "height": 180, "fps": 8.0, "seed": 3}
 
 
@@ -259,4 +263,24 @@ def test_robot_never_in_the_image(copy, tmp_path, capsys):
     blank = np.full((180, 320, 3), 90, np.uint8)
     for png in (copy / "motions").rglob("*.png"):
         cv2.imwrite(str(png), blank)
-    _calibrate_fails(copy, tmp_path, capsys, 1, "is the robot in view?", "no usable calibration", "Nothing written")
+    text = _calibrate_fails(copy, tmp_path, capsys, 1, "no usable calibration", "Nothing written")
+    assert "none of the 4 motions gave keypoint tracks" in text and "is the robot in view?" in text
+
+
+def test_a_urdf_arm_records_and_reads_back_with_its_own_kinematics(tmp_path):
+    spec = random_arm(5)
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(arm_urdf(spec))
+    out = tmp_path / "arm_rec"
+    record_episode(RecordSettings(out=out, motions=3, width=320, height=180, fps=8.0, seed=1,
+                                  robot=RobotSource(str(urdf), "arm_base", home=())), progress=False)
+    recording = read_recording(out)
+    assert recording.base_body == "arm_base" and len(recording.joint_names) == spec.n_joints
+    q = np.random.default_rng(0).uniform(-1, 1, spec.n_joints)
+    axes, anchors = forward_axes(spec, q)
+    for j in range(spec.n_joints):
+        axis, point = recording.kinematics(q, j)
+        # MuJoCo's MJCF export prints ~7 significant digits: 1e-6 is a thousand times below what a
+        # calibration resolves (mrad, mm)
+        np.testing.assert_allclose(axis, axes[j], atol=EXPORT_PRECISION)
+        np.testing.assert_allclose(np.cross(point - anchors[j], axes[j]), 0, atol=EXPORT_PRECISION)  # same line
