@@ -119,6 +119,7 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
     seconds = {"decode": 0.0, "tracking": 0.0, "solver": 0.0}
     started = time.perf_counter()
     n = len(recording.motions)
+    updated = False
     for i, m in enumerate(recording.motions):
         diag = MotionDiagnostic(m.name, names[m.joint] if m.joint is not None else None, m.n_frames)
         diagnostics.append(diag)
@@ -135,12 +136,16 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
             if not result.tracks:
                 diag.reason = "no keypoint tracks: nothing moved in the images (is the robot in view?)"
             else:
-                obs = MotionObservation(q_start=m.q_start, joint=m.joint, tracks=tuple(result.tracks))
-                try:
-                    report = calibrator.add_motion(obs, update=len(calibrator.reports) >= 2)
+                try:  # checked here: a motion the kinematics reject must not reach the calibrator
+                    recording.kinematics(m.q_start, m.joint)
+                except ArcCalibError as exc:
+                    diag.reason = f"the robot model rejects this motion: {exc}"
+                else:
+                    obs = MotionObservation(q_start=m.q_start, joint=m.joint, tracks=tuple(result.tracks))
+                    update = len(calibrator.reports) >= 2  # Algorithm 1: update once 3 motions are in
+                    report = calibrator.add_motion(obs, update=update)
                     by_report[report.index] = diag
-                except ArcCalibError as exc:  # e.g. the kinematics reject the configuration
-                    diag.reason = f"solver error: {exc}"
+                    updated = update
             seconds["decode"] += t1 - t0
             seconds["tracking"] += t2 - t1
             seconds["solver"] += time.perf_counter() - t2
@@ -151,7 +156,7 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
             what = diag.reason[:60] if diag.reason and not diag.tracks else f"{diag.tracks} tracks"
             print(f"[{i + 1}/{n}] motion {m.name} joint {diag.joint or '-'}: {m.n_frames} frames, {what}; "
                   f"{est}; {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
-    if calibrator.reports:
+    if calibrator.reports and not updated:  # the last motion added did not update (or failed)
         t0 = time.perf_counter()
         calibrator.update()
         seconds["solver"] += time.perf_counter() - t0

@@ -398,21 +398,21 @@ def read_recording(path: str | Path, moving_threshold: float = MOVING_THRESHOLD_
 
 # -- writing ---------------------------------------------------------------------------------------
 def _copy_assets(spec: mujoco.MjSpec, source_dir: Path, robot_dir: Path) -> None:
-    """Copy the mesh and texture files a spec references into robot_dir/assets; point the spec there."""
+    """Copy the mesh, height-field, skin and texture files a spec references into robot_dir/assets."""
     assets = robot_dir / "assets"
     used: dict[str, Path] = {}
-    for kind in (spec.meshes, spec.textures, spec.hfields, spec.skins):
-        for item in kind:
+    kinds = [(spec.meshes, spec.meshdir), (spec.hfields, spec.meshdir), (spec.skins, spec.meshdir),
+             (spec.textures, spec.texturedir)]
+    for items, folder in kinds:
+        for item in items:
             if not getattr(item, "file", ""):
                 continue
             src = Path(item.file)
             if not src.is_absolute():
-                base = {id(spec.meshes): spec.meshdir, id(spec.textures): spec.texturedir}.get(id(kind), "")
-                src = source_dir / base / src
-            name = src.name
-            stem, k = src.stem, 1
+                src = source_dir / folder / src
+            name, k = src.name, 1
             while name in used and used[name] != src:
-                name = f"{stem}_{k}{src.suffix}"
+                name = f"{src.stem}_{k}{src.suffix}"
                 k += 1
             used[name] = src
             assets.mkdir(parents=True, exist_ok=True)

@@ -12,14 +12,15 @@ import shutil
 from pathlib import Path
 
 import cv2
+import mujoco
 import numpy as np
 import pytest
 
 from arc_env.cli import main
 from arc_env.record import RecordSettings, ground_truth_path, record_episode
-from arc_env.recording import Distorter, read_recording
+from arc_env.recording import Distorter, read_recording, write_robot_model
 from arc_env.robots import arm_urdf, forward_axes, random_arm
-from arc_env.scene import RobotSource
+from arc_env.scene import RobotSource, panda_mjcf_dir
 from solver.camera import normalized_from_pixels
 from solver.errors import InvalidInputError
 from solver.observations import CameraIntrinsics
@@ -284,3 +285,17 @@ def test_a_urdf_arm_records_and_reads_back_with_its_own_kinematics(tmp_path):
         # calibration resolves (mrad, mm)
         np.testing.assert_allclose(axis, axes[j], atol=EXPORT_PRECISION)
         np.testing.assert_allclose(np.cross(point - anchors[j], axes[j]), 0, atol=EXPORT_PRECISION)  # same line
+
+
+def test_robot_model_with_relative_meshes_is_copied_self_contained(tmp_path):
+    src = tmp_path / "src"
+    (src / "m").mkdir(parents=True)
+    shutil.copy(panda_mjcf_dir() / "meshes" / "collision" / "link1.stl", src / "m" / "link.stl")
+    (src / "arm.xml").write_text(
+        '<mujoco><compiler meshdir="m"/><asset><mesh name="l" file="link.stl"/></asset><worldbody>'
+        '<body name="b"><geom type="mesh" mesh="l"/><body name="c"><joint name="j" axis="0 0 1"/>'
+        '<geom type="mesh" mesh="l"/></body></body></worldbody></mujoco>')
+    name, base = write_robot_model(RobotSource(str(src / "arm.xml"), "b"), tmp_path / "robot")
+    shutil.rmtree(src)  # the written model must not need the original files
+    model = mujoco.MjModel.from_xml_path(str(tmp_path / "robot" / name))
+    assert base == "b" and model.nmesh == 1 and model.joint("j").id == 0
