@@ -132,6 +132,12 @@ class Recording:
             InvalidInputError: a PNG or the video does not decode, the video holds a different number
                 of frames than joints.csv has rows, or an image is not the camera's size.
         """
+        try:
+            return self._frames(motion)
+        except cv2.error as exc:  # OpenCV's own failure on a damaged file
+            raise InvalidInputError(f"{motion.label}: OpenCV failed to decode its frames: {exc}") from exc
+
+    def _frames(self, motion: RecordedMotion) -> list[ImageArray]:
         cam = self.intrinsics
         images: list[ImageArray] = []
         if motion.video is None:
