@@ -12,7 +12,6 @@ import shutil
 from pathlib import Path
 
 import cv2
-import mujoco
 import numpy as np
 import pytest
 
@@ -297,5 +296,7 @@ def test_robot_model_with_relative_meshes_is_copied_self_contained(tmp_path):
         '<geom type="mesh" mesh="l"/></body></body></worldbody></mujoco>')
     name, base = write_robot_model(RobotSource(str(src / "arm.xml"), "b"), tmp_path / "robot")
     shutil.rmtree(src)  # the written model must not need the original files
+    import mujoco  # after arc_env (imported above), which picks MuJoCo's GL backend
+
     model = mujoco.MjModel.from_xml_path(str(tmp_path / "robot" / name))
     assert base == "b" and model.nmesh == 1 and model.joint("j").id == 0
