@@ -108,11 +108,12 @@ def record_episode(settings: RecordSettings, progress: bool = True) -> dict:
             positions = np.tile(q, (len(deltas), 1))
             positions[:, joint] += deltas
             writer.add_motion(names, positions, frames)
-            if progress:
-                print(f"\rrecording motion {i + 1}/{s.motions} (joint {names[joint]}, delta {delta:+.2f} rad, "
-                      f"{len(deltas)} frames), {time.perf_counter() - started:.0f} s", end="", file=sys.stderr,
-                      flush=True)
-        if progress:
+            if progress:  # one line rewritten in a terminal, one line per motion in a log
+                tty = sys.stderr.isatty()
+                print(f"{chr(13) if tty else ''}recording motion {i + 1}/{s.motions} (joint {names[joint]}, "
+                      f"delta {delta:+.2f} rad, {len(deltas)} frames), {time.perf_counter() - started:.0f} s",
+                      end="" if tty else "\n", file=sys.stderr, flush=True)
+        if progress and sys.stderr.isatty():
             print(file=sys.stderr)
         T = env.T_true
         truth = {
