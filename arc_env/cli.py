@@ -18,6 +18,7 @@ from solver import (
     PANDA,
     ArcCalibError,
     Calibrator,
+    InvalidInputError,
     SyntheticConfig,
     SyntheticScene,
     d415_intrinsics,
@@ -105,18 +106,63 @@ def main(argv: list[str] | None = None) -> int:
     demo.add_argument("--stop-when-converged", action="store_true", help="stop at convergence")
     demo.add_argument("--planner", choices=("random", "informed"), default="random",
                       help="motion selection: random (the paper) or informed (ours; default random)")
+    record = sub.add_parser("record", help="simulate an episode and write it as a recording (docs/recording-format.md)")
+    record.add_argument("--out", required=True, metavar="DIR",
+                        help="the recording directory to create; the ground truth goes to DIR.ground_truth.json")
+    record.add_argument("--motions", type=int, default=12, help="motions (default 12)")
+    record.add_argument("--seed", type=int, default=0, help="random seed: camera pose and motions (default 0)")
+    record.add_argument("--width", type=int, default=1920, help="image width, px (default 1920)")
+    record.add_argument("--height", type=int, default=1080, help="image height, px (default 1080)")
+    record.add_argument("--fx", type=float, help="focal length, px (default 1380 scaled with the width)")
+    record.add_argument("--dist", metavar="K1,K2,P1,P2[,K3]",
+                        help="simulate a camera with this OpenCV distortion (frames are distorted pinhole renders)")
+    record.add_argument("--video", action="store_true", help="one MP4 per motion instead of PNG frames")
+    record.add_argument("--fps", type=float, default=30.0,
+                        help="frame rate, Hz; joints turn at 1 rad/s (default 30)")
+    record.add_argument("--robot", help="robot MJCF or URDF file (default: the gymnasium-robotics Panda)")
+    record.add_argument("--base-body", help="the robot's base body (required with --robot)")
+    calibrate = sub.add_parser("calibrate", help="calibrate from a recording; write the result and ROS exports")
+    from arc_env.calibrate import add_arguments, add_result_arguments
+
+    add_arguments(calibrate)
+    run = sub.add_parser("run", help="calibrate online: the random planner drives a robot through a driver")
+    run.add_argument("--driver", required=True, metavar="MODULE:CLASS",
+                     help="a RobotDriver class or factory (docs/driver.md), e.g. arc_env.driver:SimulatedDriver")
+    run.add_argument("--motions", type=int, default=25, help="motion budget (default 25)")
+    run.add_argument("--seed", type=int, default=0, help="planner seed (default 0)")
+    run.add_argument("--all-motions", action="store_true", help="do not stop at convergence")
+    run.add_argument("--record", metavar="DIR", help="also save the sweeps as a recording in DIR")
+    add_result_arguments(run)
     args = parser.parse_args(argv)
-    if args.synthetic and args.planner != "random":
+    if args.command == "demo" and args.synthetic and args.planner != "random":
         print("arc-calib: --planner informed needs the MuJoCo scene (drop --synthetic)", file=sys.stderr)
         return 2
     try:
-        if args.synthetic:
+        if args.command == "demo" and args.synthetic:
             return _demo_synthetic(args)
-        from arc_env.demo import run_demo  # imports MuJoCo: only when a scene is wanted
+        if args.command == "demo":
+            from arc_env.demo import run_demo  # imports MuJoCo: only when a scene is wanted
 
-        return run_demo(args)
+            return run_demo(args)
+        if args.command == "record":
+            from arc_env.record import run_record
+
+            return run_record(args)
+        if args.command == "run":
+            from arc_env.online import run_online
+
+            return run_online(args)
+        from arc_env.calibrate import run_calibrate
+
+        return run_calibrate(args)
+    except InvalidInputError as exc:
+        print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
+        return 2 if args.command in ("calibrate", "record", "run") else 1
     except ArcCalibError as exc:
-        print(f"arc-calib: {exc}", file=sys.stderr)
+        print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
         return 1
 
 

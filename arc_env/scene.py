@@ -167,6 +167,15 @@ def _robot_spec(source: RobotSource) -> mujoco.MjSpec:
         raise InvalidInputError(f"robot file {path} could not be loaded: {exc}") from exc
 
 
+def robot_spec(source: RobotSource) -> mujoco.MjSpec:
+    """The robot's model as a MuJoCo spec (file paths of meshes made absolute for the default Panda).
+
+    Raises:
+        InvalidInputError: the file is missing or does not load (the message names it).
+    """
+    return _robot_spec(source)
+
+
 def _world_xml(config: SceneConfig) -> str:
     c = config
     reflect = 0.2 if c.reflections else 0.0

@@ -170,15 +170,15 @@ class Calibrator:
             InvalidInputError: the kinematics function rejects the motion's configuration or
                 returns a non-finite or non-unit axis.
         """
-        report = MotionReport(index=len(self.reports), joint=obs.joint, n_tracks=len(obs.tracks))
-        self.reports.append(report)
         axis, point = self.kinematics(obs.q_start, obs.joint)
         axis, point = np.asarray(axis, float), np.asarray(point, float)
         if (axis.shape != (3,) or point.shape != (3,) or not np.all(np.isfinite(axis))
                 or not np.all(np.isfinite(point)) or abs(np.linalg.norm(axis) - 1) > 1e-6):
-            raise InvalidInputError(
+            raise InvalidInputError(  # before anything is stored: reports and motions stay in step
                 f"kinematics returned an invalid axis {axis} / point {point} for joint {obs.joint}"
             )
+        report = MotionReport(index=len(self.reports), joint=obs.joint, n_tracks=len(obs.tracks))
+        self.reports.append(report)
         mcfg = self.config.motion
         moving = [t for t in obs.tracks
                   if len(t) >= self.config.refinement.min_track_frames and track_moved(t, mcfg)]

@@ -118,6 +118,7 @@ def test_bad_kinematics_output_is_refused():
     obs = MotionObservation(np.zeros(7), 0, ())
     with pytest.raises(InvalidInputError, match="invalid axis"):
         cal.add_motion(obs)
+    assert cal.reports == []  # nothing stored: reports and motions stay in step
 
 
 def _circle_tracks(axis_point, axis_dir, points, deltas, intrinsics: CameraIntrinsics):
