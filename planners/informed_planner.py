@@ -49,6 +49,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from planners.ik import IKSolver, target_in_view
+from planners.sampling import check_sampling, random_delta, random_motion, random_q
 from solver.camera import normalized_from_pixels
 from solver.errors import ArcCalibError, InvalidInputError
 from solver.frames import rotation_about_axis, transform_from_rt
@@ -116,10 +117,7 @@ class InformedPlannerConfig:
     changed_fraction_full: float = 0.03
 
     def __post_init__(self) -> None:
-        if not 0 < self.delta_range[0] <= self.delta_range[1]:
-            raise InvalidInputError("delta_range must be (min, max) with 0 < min <= max")
-        if not 0 <= self.limit_margin < 0.5:
-            raise InvalidInputError("limit_margin must be in [0, 0.5)")
+        check_sampling(self.delta_range, self.limit_margin)
         if self.n_random + self.n_ik < 1 or self.n_validate < 1 or self.max_rounds < 1:
             raise InvalidInputError("need n_random + n_ik >= 1, n_validate >= 1, max_rounds >= 1")
         if self.predicted_tracks < 1 or self.predicted_frames < 4:
@@ -180,28 +178,12 @@ class InformedPlanner:
         self.last_candidates: list[ScoredMotion] = []
 
     # -- sampling ------------------------------------------------------------------------------
-    def _delta(self, q: FloatArray, joint: int) -> float | None:
-        s, c = self.env.scene, self.config
-        dmin = max(c.delta_range[0], self.env.config.min_delta)
-        dmax = min(c.delta_range[1], self.env.config.max_delta)
-        room_up, room_down = s.upper[joint] - q[joint], q[joint] - s.lower[joint]
-        signs = [sg for sg, room in ((1.0, room_up), (-1.0, room_down)) if room >= dmin]
-        if not signs:
-            return None
-        sign = signs[int(self.rng.integers(len(signs)))]
-        room = room_up if sign > 0 else room_down
-        return float(sign * self.rng.uniform(dmin, min(dmax, room)))
-
-    def _random_q(self) -> FloatArray:
-        s, c = self.env.scene, self.config
-        span = s.upper - s.lower
-        return self.rng.uniform(s.lower + c.limit_margin * span, s.upper - c.limit_margin * span)
+    def _delta_range(self) -> tuple[float, float]:
+        c, env = self.config, self.env.config
+        return max(c.delta_range[0], env.min_delta), min(c.delta_range[1], env.max_delta)
 
     def _random_candidate(self) -> tuple[FloatArray, int, float] | None:
-        q = self._random_q()
-        joint = int(self.rng.integers(self.env.scene.n_joints))
-        delta = self._delta(q, joint)
-        return None if delta is None else (q, joint, delta)
+        return random_motion(self.env.scene, self.rng, self.config.limit_margin, self._delta_range())
 
     def _ik_candidate(self, T: FloatArray) -> tuple[FloatArray, int, float] | None:
         s, c = self.env.scene, self.config
@@ -212,11 +194,11 @@ class InformedPlanner:
         half = 0.5 * c.ik_region
         pixel = np.array([intr.width * self.rng.uniform(0.5 - half, 0.5 + half),
                           intr.height * self.rng.uniform(0.5 - half, 0.5 + half)])
-        result = self.ik.solve(tip, target_in_view(T, intr, pixel, depth), self._random_q())
+        result = self.ik.solve(tip, target_in_view(T, intr, pixel, depth), random_q(s, self.rng, c.limit_margin))
         if not result.reached:
             return None
         joint = int(self.rng.integers(s.n_joints))
-        delta = self._delta(result.q, joint)
+        delta = random_delta(s, self.rng, result.q, joint, self._delta_range())
         return None if delta is None else (result.q, joint, delta)
 
     # -- prediction ----------------------------------------------------------------------------

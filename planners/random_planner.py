@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from planners.sampling import check_sampling, random_motion
 from solver.errors import InvalidInputError
 from solver.frames import transform_from_rt
 
@@ -49,10 +50,7 @@ class RandomPlannerConfig:
     max_image_tests: int = 6
 
     def __post_init__(self) -> None:
-        if not 0 < self.delta_range[0] <= self.delta_range[1]:
-            raise InvalidInputError("delta_range must be (min, max) with 0 < min <= max")
-        if not 0 <= self.limit_margin < 0.5:
-            raise InvalidInputError("limit_margin must be in [0, 0.5)")
+        check_sampling(self.delta_range, self.limit_margin)
 
 
 class RandomPlanner:
@@ -71,21 +69,9 @@ class RandomPlanner:
         self.config = config or RandomPlannerConfig()
 
     def _sample(self) -> tuple[FloatArray, int, float] | None:
-        s, c = self.env.scene, self.config
-        span = s.upper - s.lower
-        lo, hi = s.lower + c.limit_margin * span, s.upper - c.limit_margin * span
-        q = self.rng.uniform(lo, hi)
-        joint = int(self.rng.integers(s.n_joints))
-        dmin = max(c.delta_range[0], self.env.config.min_delta)
-        dmax = min(c.delta_range[1], self.env.config.max_delta)
-        room_up, room_down = s.upper[joint] - q[joint], q[joint] - s.lower[joint]
-        signs = [sg for sg, room in ((1.0, room_up), (-1.0, room_down)) if room >= dmin]
-        if not signs:
-            return None
-        sign = signs[int(self.rng.integers(len(signs)))]
-        room = room_up if sign > 0 else room_down
-        delta = sign * self.rng.uniform(dmin, min(dmax, room))
-        return q, joint, float(delta)
+        c, env = self.config, self.env.config
+        delta_range = (max(c.delta_range[0], env.min_delta), min(c.delta_range[1], env.max_delta))
+        return random_motion(self.env.scene, self.rng, c.limit_margin, delta_range)
 
     def _in_view_estimate(self, q: FloatArray, joint: int, delta: float, T: FloatArray) -> bool:
         s, c = self.env.scene, self.config
