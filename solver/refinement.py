@@ -253,34 +253,32 @@ def _solve(tracks: TrackSet, T0: FloatArray, points: FloatArray, loss: str, f_sc
     return perturb(T0, sol.x[:6]), (sol.x[6:].reshape(-1, 3) - t) @ R, problem, sol
 
 
-def _schur_information(jac: sp.csr_matrix) -> FloatArray:
-    """U - W V^-1 W^T (6, 6): the pose block of J^T J with every track's point marginalized out.
+def _schur_information(problem: _Problem, x: FloatArray) -> FloatArray:
+    """U - W V^-1 W^T (6, 6): the pose block of J^T J at x with every track's point marginalized out.
 
-    Args:
-        jac: (2P, 6 + 3T) sparse Jacobian in pixels, pose columns first.
+    Built track by track from the Jacobian's dense blocks (each observation touches the pose and
+    its own point only), px^2 per (rad or m)^2.
     """
-    Jp = jac[:, :6].toarray()
-    Jx = jac[:, 6:].tocsc()
-    U = Jp.T @ Jp
-    W = np.asarray(Jx.T @ Jp).T  # (6, 3T)
-    V = (Jx.T @ Jx).tocsr()
-    T = Jx.shape[1] // 3
-    idx = np.arange(3 * T).reshape(T, 3)
-    blocks = np.asarray(V[idx[:, :, None].repeat(3, 2).ravel(),
-                          idx[:, None, :].repeat(3, 1).ravel()]).reshape(T, 3, 3)
-    Vinv = np.linalg.inv(blocks + 1e-12 * np.eye(3))
-    Wb = W.reshape(6, T, 3).transpose(1, 0, 2)  # (T, 6, 3)
-    return U - np.einsum("tij,tjk,tlk->il", Wb, Vinv, Wb)
+    blocks = problem.jacobian_blocks(x)
+    Jp, Jx = blocks[:, :, :6], blocks[:, :, 6:]
+    track, n_tracks = problem.tracks.track, problem.tracks.n_tracks
+    U = np.einsum("pki,pkj->ij", Jp, Jp)
+    W = np.zeros((n_tracks, 6, 3))
+    V = np.zeros((n_tracks, 3, 3))
+    np.add.at(W, track, np.einsum("pki,pkj->pij", Jp, Jx))
+    np.add.at(V, track, np.einsum("pki,pkj->pij", Jx, Jx))
+    return U - np.einsum("tij,tjk,tlk->il", W, np.linalg.inv(V + 1e-12 * np.eye(3)), W)
 
 
-def pose_covariance(jac: sp.csr_matrix, sigma2: float) -> FloatArray:
-    """Covariance (6, 6) of the pose block: sigma^2 (U - W V^-1 W^T)^-1 (Schur complement).
+def pose_covariance(problem: _Problem, x: FloatArray, sigma2: float) -> FloatArray:
+    """Covariance (6, 6) of the pose block at x: sigma^2 (U - W V^-1 W^T)^-1 (Schur complement).
 
     Args:
-        jac: (2P, 6 + 3T) sparse Jacobian in pixels, pose columns first.
+        problem: the bundle adjustment.
+        x: (6 + 3T,) its parameters (pose perturbation, then the tracks' camera-frame points).
         sigma2: residual variance, px^2.
     """
-    return sigma2 * np.linalg.inv(_schur_information(jac))
+    return sigma2 * np.linalg.inv(_schur_information(problem, x))
 
 
 def pose_information(tracks: TrackSet, T_camera_base: FloatArray) -> FloatArray:
@@ -303,16 +301,8 @@ def pose_information(tracks: TrackSet, T_camera_base: FloatArray) -> FloatArray:
     points, ok = triangulate_tracks(tracks, T_camera_base)
     if not ok.any():
         return np.zeros((6, 6))
-    sub = _subset(tracks, ok)
     q = points[ok] @ T_camera_base[:3, :3].T + T_camera_base[:3, 3]
-    blocks = _Problem(sub, T_camera_base).jacobian_blocks(np.concatenate([np.zeros(6), q.ravel()]))
-    Jp, Jx = blocks[:, :, :6], blocks[:, :, 6:]  # the same Schur complement as the sparse path, dense
-    U = np.einsum("pki,pkj->ij", Jp, Jp)
-    W = np.zeros((sub.n_tracks, 6, 3))
-    V = np.zeros((sub.n_tracks, 3, 3))
-    np.add.at(W, sub.track, np.einsum("pki,pkj->pij", Jp, Jx))
-    np.add.at(V, sub.track, np.einsum("pki,pkj->pij", Jx, Jx))
-    S = U - np.einsum("tij,tjk,tlk->il", W, np.linalg.inv(V + 1e-12 * np.eye(3)), W)
+    S = _schur_information(_Problem(_subset(tracks, ok), T_camera_base), np.concatenate([np.zeros(6), q.ravel()]))
     return 0.5 * (S + S.T)
 
 
@@ -352,7 +342,7 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     T, pts2, problem, sol = _solve(sub2, T, pts[good], "linear", 1.0, config.max_nfev, 1e-8)
     m, n = sol.fun.size, sol.x.size
     sigma2 = float(np.sum(sol.fun**2) / max(m - n, 1))
-    cov = pose_covariance(sol.jac if sp.issparse(sol.jac) else sp.csr_matrix(sol.jac), sigma2)
+    cov = pose_covariance(problem, sol.x, sigma2)
     inliers = np.zeros(tracks.n_tracks, dtype=bool)
     kept_idx = np.flatnonzero(keep)[good]
     inliers[kept_idx] = True

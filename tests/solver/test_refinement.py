@@ -215,10 +215,11 @@ def test_pose_covariance_is_the_pose_block_of_the_full_inverse():
     scene = _make_scene(13, n_motions=3, n_tracks=3, n_frames=10)
     tracks = build_track_set(scene.motions, FOCAL)
     problem = _Problem(tracks, scene.T_true)
-    J = problem.jacobian(np.concatenate([np.zeros(6), _camera_points(scene).ravel()]))
+    x = np.concatenate([np.zeros(6), _camera_points(scene).ravel()])
+    J = problem.jacobian(x)
     sigma2 = 0.25
     full = sigma2 * np.linalg.inv((J.T @ J).toarray())
-    np.testing.assert_allclose(pose_covariance(J, sigma2), full[:6, :6], rtol=1e-6)
+    np.testing.assert_allclose(pose_covariance(problem, x, sigma2), full[:6, :6], rtol=1e-6)
 
 
 def test_pose_information_is_the_inverse_pose_block_from_finite_differences():
