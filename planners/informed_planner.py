@@ -40,6 +40,7 @@ frames differ in the most pixels (the image test a real robot does with two snap
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -49,11 +50,13 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from planners.ik import IKSolver, target_in_view
+from planners.random_planner import image_change
 from planners.sampling import check_sampling, random_delta, random_motion, random_q
 from solver.camera import normalized_from_pixels
 from solver.errors import ArcCalibError, InvalidInputError
-from solver.frames import rotation_about_axis, transform_from_rt
-from solver.refinement import TrackSet, pose_information
+from solver.frames import transform_from_rt
+from solver.motion import LINES_NOT_ELLIPSES, fibonacci_sphere
+from solver.refinement import build_track_set, pose_information
 
 if TYPE_CHECKING:
     from arc_env.env import ArcCalibEnv
@@ -169,11 +172,7 @@ class InformedPlanner:
         self.ik = IKSolver(env.scene)
         self._tracks_per_px2 = self.config.prior_tracks / (
             self.config.prior_area * env.intrinsics.width * env.intrinsics.height)
-        n = 2000
-        k = np.arange(n) + 0.5
-        z = 1 - 2 * k / n
-        phi = np.pi * (1 + 5**0.5) * k
-        self._sphere = np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], axis=1)
+        self._sphere = fibonacci_sphere(2000)
         #: the candidates scored by the last ``plan`` call (best first), for inspection.
         self.last_candidates: list[ScoredMotion] = []
 
@@ -235,16 +234,14 @@ class InformedPlanner:
         in_view = float(min(ok[0].mean(), ok[-1].mean()))
         area = float(np.mean([cv2.contourArea(cv2.convexHull(uv[k][ok[k]].astype(np.float32)))
                               if ok[k].sum() >= 3 else 0.0 for k in (0, -1)]))
-        keep = ok.sum(axis=0) >= 4  # tracks of at least 4 frames, as the bundle adjustment takes
-        if not keep.any():
+        min_frames = self.env.config.calibrator.refinement.min_track_frames
+        if not (ok.sum(axis=0) >= min_frames).any():
             return np.zeros((6, 6)), in_view, area
+        normalized = np.full_like(uv, np.nan)
+        normalized[ok] = normalized_from_pixels(uv[ok], self.env.intrinsics)
+        tracks = [(normalized[ok[:, p], p], deltas[ok[:, p]]) for p in range(len(body))]
         axis, point = s.axis_and_point(q, joint)
-        frame, track = np.nonzero(ok[:, keep].T)[::-1]  # observations ordered by track, then frame
-        uv_kept = uv[:, keep][frame, track]
-        tracks = TrackSet(normalized_from_pixels(uv_kept, self.env.intrinsics), track.astype(np.int64),
-                          rotation_about_axis(axis, deltas)[frame], np.tile(point, (int(keep.sum()), 1)),
-                          np.zeros(int(keep.sum()), dtype=np.int64), self.env.intrinsics.focal)
-        info = pose_information(tracks, T)
+        info = pose_information(build_track_set([(axis, point, tracks)], self.env.intrinsics.focal, min_frames), T)
         return info / c.noise_px**2 / len(body), in_view, area
 
     def expected_tracks(self, area_px: float) -> float:
@@ -280,15 +277,15 @@ class InformedPlanner:
                 info = info + motion_info * min(report.n_tracks, c.predicted_tracks)
         return info
 
-    def score(self, q: FloatArray, joint: int, delta: float, T: FloatArray, info_so_far: FloatArray
-              ) -> ScoredMotion:
+    def score(self, q: FloatArray, joint: int, delta: float, T: FloatArray, info_so_far: FloatArray,
+              source: str = "") -> ScoredMotion:
         """The candidate's D-optimal gain log det(I + I_c) - log det(I) (-inf when not in view)."""
         info, in_view, area = self.predicted_information(q, joint, delta, T)
         if in_view < self.config.min_in_view:
-            return ScoredMotion(q, joint, delta, -np.inf, in_view, "")
+            return ScoredMotion(q, joint, delta, -np.inf, in_view, source)
         info = info * self.expected_tracks(area)
         gain = np.linalg.slogdet(info_so_far + info)[1] - np.linalg.slogdet(info_so_far)[1]
-        return ScoredMotion(q, joint, delta, float(gain), in_view, "")
+        return ScoredMotion(q, joint, delta, float(gain), in_view, source)
 
     # -- planning ------------------------------------------------------------------------------
     def plan(self, observation: dict[str, Any]) -> dict[str, Any]:
@@ -315,9 +312,9 @@ class InformedPlanner:
                     cand = None
                 if cand is None:
                     continue
-                sm = self.score(*cand, T, so_far)
+                sm = self.score(*cand, T, so_far, source)
                 if np.isfinite(sm.gain):
-                    scored.append(ScoredMotion(sm.q, sm.joint, sm.delta, sm.gain, sm.in_view, source))
+                    scored.append(sm)
             scored.sort(key=lambda m: -m.gain)
             self.last_candidates = scored
             for m in scored[:c.n_validate]:
@@ -347,7 +344,7 @@ class InformedPlanner:
                 geometry = calibrator.motion_geometry(i)
                 if geometry is not None:
                     cost += 0.5 * ((dots - geometry.axis_cam[2]) / 0.1) ** 2
-                elif calibrator.reports[i].stage_one.startswith("the trajectories are lines"):
+                elif calibrator.reports[i].stage_one.startswith(LINES_NOT_ELLIPSES):
                     cost += 0.5 * (np.maximum(0.0, np.abs(dots) - 0.15) / 0.05) ** 2
         w = np.exp(-(cost - cost.min()))
         return dirs, w / w.sum()
@@ -408,16 +405,6 @@ class InformedPlanner:
         size = min(1.0, radius / self.config.full_radius_m)
         return quality * novelty * size * abs(delta) / self.env.config.max_delta
 
-    def _changed_fraction(self, q: FloatArray, joint: int, delta: float) -> float:
-        s = self.env.scene
-        saved = s.q
-        frames = []
-        for d in (0.0, delta):
-            s.set_swept(q, joint, d)
-            frames.append(s.render().astype(np.int16))
-        s.set_q(saved)
-        return float((np.abs(frames[0] - frames[1]).max(axis=2) > 12).mean())
-
     def _plan_bootstrap(self) -> dict[str, Any]:
         c = self.config
         posterior = self.view_direction_posterior()
@@ -426,10 +413,12 @@ class InformedPlanner:
                      if cand is not None]
             ranked = sorted(((self.bootstrap_score(*cand, posterior), *cand) for cand in drawn),
                             key=lambda v: -v[0])
-            valid = [v for v in ranked[:c.n_validate] if not self.env.validate(v[1], v[2], v[3])]
+            needed = max(1, c.bootstrap_image_tests)  # validate best-first, only as many as get tested
+            valid = list(itertools.islice(
+                (v for v in ranked[:c.n_validate] if not self.env.validate(v[1], v[2], v[3])), needed))
             if not valid:
                 continue
-            tested = [(v[0] * min(1.0, self._changed_fraction(v[1], v[2], v[3]) / c.changed_fraction_full), *v[1:])
+            tested = [(v[0] * min(1.0, image_change(self.env.scene, *v[1:]) / c.changed_fraction_full), *v[1:])
                       for v in valid[:c.bootstrap_image_tests]]
             _, q, joint, delta = max(tested, key=lambda v: v[0]) if tested else valid[0]
             return {"Q": q, "J": joint, "delta": np.array([delta])}

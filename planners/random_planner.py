@@ -22,6 +22,7 @@ from solver.frames import transform_from_rt
 
 if TYPE_CHECKING:
     from arc_env.env import ArcCalibEnv
+    from arc_env.scene import Scene
 
 FloatArray = NDArray[np.float64]
 
@@ -51,6 +52,21 @@ class RandomPlannerConfig:
 
     def __post_init__(self) -> None:
         check_sampling(self.delta_range, self.limit_margin)
+
+
+def image_change(scene: Scene, q: FloatArray, joint: int, delta: float) -> float:
+    """Fraction of pixels that change (by more than 12 of 255 in some channel) between a sweep's end frames.
+
+    The image test a real robot does with two snapshots: renders the sweep (q (n,) rad, joint,
+    delta rad) at 0 and delta, then puts the arm back where it was.
+    """
+    saved = scene.q
+    frames = []
+    for d in (0.0, delta):
+        scene.set_swept(q, joint, d)
+        frames.append(scene.render().astype(np.int16))
+    scene.set_q(saved)
+    return float((np.abs(frames[0] - frames[1]).max(axis=2) > 12).mean())
 
 
 class RandomPlanner:
@@ -90,15 +106,7 @@ class RandomPlanner:
         return min(fractions) >= c.min_in_view
 
     def _in_view_image(self, q: FloatArray, joint: int, delta: float) -> bool:
-        s = self.env.scene
-        saved = s.q
-        frames = []
-        for d in (0.0, delta):
-            s.set_swept(q, joint, d)
-            frames.append(s.render().astype(np.int16))
-        s.set_q(saved)
-        changed = np.abs(frames[0] - frames[1]).max(axis=2) > 12
-        return float(changed.mean()) >= self.config.min_changed_fraction
+        return image_change(self.env.scene, q, joint, delta) >= self.config.min_changed_fraction
 
     def plan(self, observation: dict[str, Any]) -> dict[str, Any]:
         """The next motion as an env action {"Q", "J", "delta"}.

@@ -175,6 +175,10 @@ def _track_rms(points: _Points, axis: FloatArray) -> FloatArray:
     return np.sqrt(sq / np.maximum(np.bincount(points.ids, minlength=points.n), 1))
 
 
+#: How stage one's verdict on a motion seen edge-on begins (the ellipses degenerate into lines).
+LINES_NOT_ELLIPSES = "the trajectories are lines, not ellipses"
+
+
 def fibonacci_sphere(n: int) -> FloatArray:
     """N nearly uniform unit vectors on the sphere: (n, 3)."""
     k = np.arange(n) + 0.5
@@ -281,7 +285,7 @@ def estimate_motion_geometry(obs: MotionObservation, intrinsics: CameraIntrinsic
     circle_rms = float(np.median(_track_rms(points, refined[order[0]]))) * focal
     if line_rms <= config.line_ratio * circle_rms:
         raise DegenerateMotionError(
-            f"the trajectories are lines, not ellipses: straight lines fit them to {line_rms:.2f} px, "
+            f"{LINES_NOT_ELLIPSES}: straight lines fit them to {line_rms:.2f} px, "
             f"circles to {circle_rms:.2f} px (the camera lies near the plane of rotation)"
         )
     if ambiguity < config.ambiguity_ratio:
@@ -294,7 +298,7 @@ def estimate_motion_geometry(obs: MotionObservation, intrinsics: CameraIntrinsic
     if grazing < config.min_view_angle:
         raise DegenerateMotionError(
             f"the camera lies in the plane of rotation (rays meet it at {np.degrees(grazing):.2f} deg): "
-            "the trajectories are lines, not ellipses"
+            f"{LINES_NOT_ELLIPSES}"
         )
     keep = np.arange(len(usable))
     rms = _track_rms(points, axis) * focal

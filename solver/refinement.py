@@ -95,15 +95,15 @@ def build_track_set(motions: Sequence[tuple[FloatArray, FloatArray, Sequence[tup
     """
     uv, track, rot, pivot, motion = [], [], [], [], []
     for i, (axis, point, tracks) in enumerate(motions):
-        for uv_j, delta_j in tracks:
-            if uv_j.shape[0] < min_frames:
-                continue
-            k = len(pivot)
+        kept = [(uv_j, delta_j) for uv_j, delta_j in tracks if uv_j.shape[0] >= min_frames]
+        if not kept:
+            continue
+        for uv_j, _ in kept:
             uv.append(uv_j)
-            track.append(np.full(uv_j.shape[0], k))
-            rot.append(rotation_about_axis(axis, delta_j))
+            track.append(np.full(uv_j.shape[0], len(pivot)))
             pivot.append(point)
             motion.append(i)
+        rot.append(rotation_about_axis(axis, np.concatenate([d for _, d in kept])))  # one call per motion
     if not pivot:
         raise InsufficientMotionsError("no track long enough to refine")
     return TrackSet(np.concatenate(uv), np.concatenate(track).astype(np.int64), np.concatenate(rot),
