@@ -69,12 +69,11 @@ def run_demo(args: argparse.Namespace) -> int:
 
 def _episode(env: ArcCalibEnv, args: argparse.Namespace) -> int:
     obs, info = env.reset(seed=args.seed)
-    planner_name = getattr(args, "planner", "random")
-    planner = (InformedPlanner if planner_name == "informed" else RandomPlanner)(env, np.random.default_rng(args.seed))
+    planner = (InformedPlanner if args.planner == "informed" else RandomPlanner)(env, np.random.default_rng(args.seed))
     mode = "oracle keypoints" if args.oracle else "rendered pixels, optical-flow tracking"
     robot = env.config.scene.robot.path or "Franka Panda (gymnasium-robotics)"
     print(f"{robot}, camera {env.intrinsics.width}x{env.intrinsics.height} fx={env.intrinsics.K[0, 0]:.0f}, "
-          f"{mode}, {planner_name} motions, seed {args.seed}")
+          f"{mode}, {args.planner} motions, seed {args.seed}")
     print(f"{'#':>3} {'joint':>5} {'delta':>6} {'frames':>6} {'tracks':>6} {'status':>9} {'stage':>8} "
           f"{'rot err':>9} {'trans err':>10} {'sec':>5}  note")
     started = time.perf_counter()

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from arc_env.scene import Scene
+from solver.camera import normalized_from_pixels
 from solver.errors import InvalidInputError
 from solver.observations import CameraIntrinsics
 
@@ -129,10 +130,8 @@ class IKSolver:
 
 def target_in_view(T_camera_base: FloatArray, intrinsics: CameraIntrinsics, pixel: FloatArray,
                    depth_m: float) -> FloatArray:
-    """The base-frame point (3,) m seen at pixel (2,) px (pinhole, no distortion) at depth_m along z."""
-    K = intrinsics.K
-    ray = np.array([(pixel[0] - K[0, 2]) / K[0, 0], (pixel[1] - K[1, 2]) / K[1, 1], 1.0])
-    p_cam = ray * depth_m
+    """The base-frame point (3,) m seen at pixel (2,) px (undistorted by the camera model) at depth_m along z."""
+    uv = normalized_from_pixels(np.asarray(pixel, dtype=np.float64).reshape(1, 2), intrinsics)[0]
+    p_cam = np.array([uv[0], uv[1], 1.0]) * depth_m
     R, t = T_camera_base[:3, :3], T_camera_base[:3, 3]
     return R.T @ (p_cam - t)
-

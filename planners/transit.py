@@ -144,10 +144,10 @@ def plan_transit(checker: CollisionChecker, lower: FloatArray, upper: FloatArray
         if w is None:
             last = f"RRTConnect found no path in {cfg.time_limit:.1f} s"
         else:
-            bad = [why for a, b in zip(w[:-1], w[1:], strict=True)
-                   for free, why in [checker.path_free(a, b, cfg.max_step_m)] if not free]
-            if not bad:
+            checks = (checker.path_free(a, b, cfg.max_step_m) for a, b in zip(w[:-1], w[1:], strict=True))
+            bad = next((why for free, why in checks if not free), None)  # stops at the first blocked segment
+            if bad is None:
                 return TransitPath(w, path_length(w), True, time.perf_counter() - t0)
-            last = f"the planned path failed the {cfg.max_step_m * 1e3:.0f} mm check: {bad[0]}"
+            last = f"the planned path failed the {cfg.max_step_m * 1e3:.0f} mm check: {bad}"
         resolution /= 2.0
     raise TransitError(f"no collision-free transit after {cfg.attempts} attempts: {last}")
