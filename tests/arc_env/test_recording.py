@@ -6,7 +6,6 @@ little) is made once per module; each test copies it (its robot model is shared 
 which the format allows) and breaks one thing.
 """
 
-import csv
 import json
 import shutil
 from pathlib import Path
@@ -23,6 +22,7 @@ from arc_env.scene import RobotSource, panda_mjcf_dir
 from solver.camera import normalized_from_pixels
 from solver.errors import InvalidInputError
 from solver.observations import CameraIntrinsics
+from tests.arc_env.joints_csv import read_joints_csv, write_joints_csv
 
 #: rad and m: how closely a model survives MuJoCo's MJCF export into the recording.
 EXPORT_PRECISION = 1e-6
@@ -46,20 +46,6 @@ def copy(tiny, tmp_path):
     return dst
 
 
-def _read_csv(path):
-    with path.open(newline="") as f:
-        rows = list(csv.reader(f))
-    return rows[0], [[float(v) for v in r] for r in rows[1:]]
-
-
-def _write_csv(path, header, rows):
-    with path.open("w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        for r in rows:
-            w.writerow([int(r[0]), *r[1:]])
-
-
 def _calibrate_fails(rec, tmp_path, capsys, code, *needles):
     out = tmp_path / "result.json"
     assert main(["calibrate", str(rec), "--output", str(out), "--quiet"]) == code
@@ -81,7 +67,7 @@ def test_record_writes_the_format_and_the_ground_truth_beside_it(tiny):
     recording = read_recording(rec)
     assert len(recording.motions) == TINY["motions"] and not any(m.pruned for m in recording.motions)
     for m in recording.motions:
-        header, rows = _read_csv(m.path / "joints.csv")
+        header, rows = read_joints_csv(m.path / "joints.csv")
         assert header[0] == "frame" and tuple(header[1:]) == recording.joint_names
         frames = recording.frames(m)
         assert len(frames) == m.n_frames == len(rows) and frames[0].shape == (180, 320, 3)
@@ -169,25 +155,25 @@ def test_missing_frame(copy, tmp_path, capsys):
 
 def test_extra_csv_row(copy, tmp_path, capsys):
     path = copy / "motions" / "000" / "joints.csv"
-    header, rows = _read_csv(path)
-    _write_csv(path, header, rows + [[len(rows), *rows[-1][1:]]])
+    header, rows = read_joints_csv(path)
+    write_joints_csv(path, header, rows + [[len(rows), *rows[-1][1:]]])
     _calibrate_fails(copy, tmp_path, capsys, 2, str(Path("motions") / "000"), f"has {len(rows) + 1} rows")
 
 
 def test_unknown_joint_name(copy, tmp_path, capsys):
     path = copy / "motions" / "003" / "joints.csv"
-    header, rows = _read_csv(path)
+    header, rows = read_joints_csv(path)
     header[2] = "elbow_of_another_robot"
-    _write_csv(path, header, rows)
+    write_joints_csv(path, header, rows)
     _calibrate_fails(copy, tmp_path, capsys, 2, str(Path("motions") / "003" / "joints.csv"),
                      "unknown joint(s) ['elbow_of_another_robot']", "robot:panda0_joint1")
 
 
 def test_nan_joint_value(copy, tmp_path, capsys):
     path = copy / "motions" / "001" / "joints.csv"
-    header, rows = _read_csv(path)
+    header, rows = read_joints_csv(path)
     rows[2][3] = float("nan")
-    _write_csv(path, header, rows)
+    write_joints_csv(path, header, rows)
     _calibrate_fails(copy, tmp_path, capsys, 2, str(Path("motions") / "001" / "joints.csv"), "line 4 (frame 2)",
                      header[3], "NaN")
 
@@ -226,16 +212,16 @@ def test_frames_and_video_both(copy, tmp_path, capsys):
 
 def _freeze(path):
     """Make every row of a joints.csv equal to row 0: no joint moves."""
-    header, rows = _read_csv(path)
-    _write_csv(path, header, [[k, *rows[0][1:]] for k in range(len(rows))])
+    header, rows = read_joints_csv(path)
+    write_joints_csv(path, header, [[k, *rows[0][1:]] for k in range(len(rows))])
     return header
 
 
 def _second_joint_moves(path, which):
-    header, rows = _read_csv(path)
+    header, rows = read_joints_csv(path)
     for k, r in enumerate(rows):
         r[1 + which] += 0.3 * k / len(rows)
-    _write_csv(path, header, rows)
+    write_joints_csv(path, header, rows)
     return header
 
 

@@ -9,7 +9,6 @@ K and gains ``dist``) and encoded as one MP4 per motion -- a distorted camera an
 to keep the suite's time down (PNG-vs-MP4 reading alone is tested in test_recording.py).
 """
 
-import csv
 import json
 import shutil
 
@@ -23,6 +22,7 @@ from arc_env.record import RecordSettings, ground_truth_path, record_episode
 from arc_env.recording import Distorter, read_recording, write_video
 from solver.frames import pose_errors, transform_from_rt
 from solver.observations import CameraIntrinsics
+from tests.arc_env.joints_csv import read_joints_csv, write_joints_csv
 
 #: 9 tracked motions at 960x540 reach about 3 mrad / 3 mm on this seed; a wrong pose, or one that
 #: ignored the lens distortion, is off by centimetres and degrees. Bounds as the env's tracked episode.
@@ -46,29 +46,16 @@ def recording(tmp_path_factory):
     return out
 
 
-def _rows(path):
-    with path.open(newline="") as f:
-        rows = list(csv.reader(f))
-    return rows[0], [[float(v) for v in r] for r in rows[1:]]
-
-
-def _write(path, header, rows):
-    with path.open("w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        w.writerows([[int(r[0]), *r[1:]] for r in rows])
-
-
 def _no_joint_moves(path):
-    header, rows = _rows(path)
-    _write(path, header, [[k, *rows[0][1:]] for k in range(len(rows))])
+    header, rows = read_joints_csv(path)
+    write_joints_csv(path, header, [[k, *rows[0][1:]] for k in range(len(rows))])
 
 
 def _two_joints_move(path):
-    header, rows = _rows(path)
+    header, rows = read_joints_csv(path)
     for k, r in enumerate(rows):
         r[7] += 0.5 * k / len(rows)  # joint 6 turns along with the recorded one
-    _write(path, header, rows)
+    write_joints_csv(path, header, rows)
 
 
 def _derive(src, dst, frame_fn=None, video=False, dist=None):
