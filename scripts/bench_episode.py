@@ -11,57 +11,24 @@ error from geometry error. Prints a table and, with ``--json PATH``, writes
 a checkpoint counts as an infinite error in the medians (printed as inf, written as null).
 ``--quick``: 2 poses x 1 seed at 960x540, 10 motions, for a CI smoke run (at 640x360 the
 speckle falls below a pixel and too few corners survive to calibrate in 10 motions).
+``--store DIR`` keeps every finished episode (``arc_env.episodes``) and reuses it, so a long run can be
+interrupted and resumed; ``--workers N`` runs N episodes at once (one renderer thread each).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 import numpy as np
 
 import arc_env  # noqa: F401  (chooses the GL backend before MuJoCo loads)
-from arc_env.env import ArcCalibEnv, EnvConfig, benchmark_camera_pose
-from arc_env.scene import SceneConfig
-from planners.random_planner import RandomPlanner
+from arc_env.episodes import EpisodeSpec, EpisodeStore, commits_used, padded_curve, run_episodes
 
 CHECKPOINTS = (3, 10, 25)
 TARGET_25 = (0.001, 0.0015)  # rad, m: issue 3's target for tracked runs at 25 motions
 PAPER_25 = (0.0042, 0.0065)  # rad, m: the paper's simulation result
-
-
-
-def run_episode(pose: int, seed: int, n_motions: int, oracle: bool, width: int, height: int) -> dict:
-    """One episode; errors at each checkpoint, the first converged motion, and timings."""
-    config = EnvConfig(scene=SceneConfig(width=width, height=height), max_motions=n_motions,
-                       oracle_keypoints=oracle, terminate_on_convergence=False)
-    env = ArcCalibEnv(config)
-    out: dict = {"errors": {}, "converged_at": None, "seconds": {"render": 0.0, "tracking": 0.0, "solver": 0.0,
-                                                                 "planning": 0.0}, "frames": 0}
-    try:
-        started = time.perf_counter()
-        obs, _ = env.reset(seed=1000 * pose + seed,
-                           options={"camera_pose": benchmark_camera_pose(pose, config.camera_target)})
-        planner = RandomPlanner(env, np.random.default_rng(1000 * pose + seed))
-        for i in range(1, n_motions + 1):
-            t0 = time.perf_counter()
-            action = planner.plan(obs)
-            out["seconds"]["planning"] += time.perf_counter() - t0
-            obs, _, _, truncated, info = env.step(action)
-            for k, v in env.last_seconds.items():
-                out["seconds"][k] += v
-            out["frames"] += info.get("n_frames", 0)
-            if obs["converged"] and out["converged_at"] is None:
-                out["converged_at"] = i
-            if i in CHECKPOINTS:
-                out["errors"][i] = ((info["rot_error_rad"], info["trans_error_m"])
-                                    if info["rot_error_rad"] is not None else (np.inf, np.inf))
-        out["seconds"]["total"] = time.perf_counter() - started
-    finally:
-        env.close()
-    return out
 
 
 def _median(values: list[float]) -> float:
@@ -72,10 +39,11 @@ def _finite_or_none(x: float) -> float | None:
     return x if np.isfinite(x) else None
 
 
-def summarize(runs: list[dict], checkpoints: list[int]) -> dict:
+def summarize(runs: list[dict], checkpoints: list[int], n_motions: int) -> dict:
     """Median rotation and translation error per checkpoint over runs."""
-    return {str(k): {"rot_median_rad": _median([r["errors"][k][0] for r in runs if k in r["errors"]]),
-                     "trans_median_m": _median([r["errors"][k][1] for r in runs if k in r["errors"]])}
+    curves = [padded_curve(r, n_motions) for r in runs]
+    return {str(k): {"rot_median_rad": _median([c[k - 1][0] for c in curves]),
+                     "trans_median_m": _median([c[k - 1][1] for c in curves])}
             for k in checkpoints}
 
 
@@ -90,37 +58,45 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-oracle", action="store_true", help="skip the oracle runs")
     parser.add_argument("--quick", action="store_true", help="2 poses x 1 seed, 960x540, 10 motions (CI smoke)")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
+    parser.add_argument("--workers", type=int, default=1, help="episodes run in parallel processes (default 1)")
+    parser.add_argument("--store", type=Path, help="keep finished episodes here and reuse them (resumable runs; "
+                        "shared with compare_planners.py and reproduce_paper.py)")
     args = parser.parse_args(argv)
     if args.quick:
         args.poses, args.seeds, args.motions, args.width, args.height = 2, 1, 10, 960, 540
     checkpoints = [k for k in CHECKPOINTS if k <= args.motions]
     modes = ["tracked"] + ([] if args.no_oracle else ["oracle"])
-    results: dict[str, list[dict]] = {m: [] for m in modes}
+    specs = {(mode, pose, seed): EpisodeSpec("random", pose, seed, args.motions, args.width, args.height,
+                                             oracle=mode == "oracle")
+             for pose in range(args.poses) for seed in range(args.seeds) for mode in modes}
     print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, {args.width}x{args.height}")
     print(f"{'mode':>8} {'pose':>4} {'seed':>4} " + " ".join(f"{'@' + str(k):>19}" for k in checkpoints)
-          + f" {'conv':>5} {'sec':>6} {'render':>7} {'track':>6} {'solve':>6}")
-    for pose in range(args.poses):
-        for seed in range(args.seeds):
-            for mode in modes:
-                r = run_episode(pose, seed, args.motions, mode == "oracle", args.width, args.height)
-                results[mode].append(r)
-                errs = " ".join(f"{r['errors'][k][0]:>9.2e} {r['errors'][k][1] * 1e3:>6.2f}mm" for k in checkpoints)
-                s = r["seconds"]
-                print(f"{mode:>8} {pose:>4} {seed:>4} {errs} {str(r['converged_at'] or '-'):>5} {s['total']:>6.1f} "
-                      f"{s['render']:>7.1f} {s['tracking']:>6.1f} {s['solver']:>6.1f}", flush=True)
+          + f" {'conv':>5} {'sec':>6} {'render':>7} {'track':>6} {'solve':>6}  commit")
+
+    def show(r: dict, from_store: bool) -> None:
+        curve = padded_curve(r, args.motions)
+        errs = " ".join(f"{curve[k - 1][0]:>9.2e} {curve[k - 1][1] * 1e3:>6.2f}mm" for k in checkpoints)
+        spec, sec = r["spec"], r["seconds"]
+        print(f"{'oracle' if spec['oracle'] else 'tracked':>8} {spec['pose']:>4} {spec['seed']:>4} {errs} "
+              f"{str(r['converged_at'] or '-'):>5} {sec['total']:>6.1f} {sec['render']:>7.1f} {sec['tracking']:>6.1f} "
+              f"{sec['solver']:>6.1f}  {r['commit']}{' (stored)' * from_store}{'  ' + r['note'] if r['note'] else ''}",
+              flush=True)
+
+    records = run_episodes(specs.values(), EpisodeStore(args.store) if args.store else None, args.workers, show)
+    results = {mode: [records[specs[mode, p, s]] for p in range(args.poses) for s in range(args.seeds)]
+               for mode in modes}
     tracked = results["tracked"]
     conv = [r["converged_at"] if r["converged_at"] is not None else np.inf for r in tracked]
     frames = sum(r["frames"] for r in tracked)
-    out = {
-        mode: summarize(runs, checkpoints) for mode, runs in results.items()
-    }
+    out = {mode: summarize(runs, checkpoints, args.motions) for mode, runs in results.items()}
     out["motions_to_converge_median"] = _finite_or_none(_median(conv))
     out["seconds_per_episode_median"] = _median([r["seconds"]["total"] for r in tracked])
     out["seconds_split"] = {k: _median([r["seconds"][k] for r in tracked]) for k in ("render", "tracking", "solver")}
     out["tracking_plus_solver_ms_per_frame"] = 1e3 * sum(
         r["seconds"]["tracking"] + r["seconds"]["solver"] for r in tracked) / max(frames, 1)
-    out["planning_seconds_per_motion_median"] = _median([r["seconds"]["planning"] / args.motions for r in tracked])
+    out["planning_seconds_per_call_median"] = _median([t for r in tracked for t in r["planning"]])
     print()
+    print(f"code: {commits_used(records.values())}")
     for mode in modes:
         for k in checkpoints:
             e = out[mode][str(k)]

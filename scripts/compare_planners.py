@@ -15,13 +15,14 @@ rotation <= 0.0042 rad and translation <= 6.5 mm; a run reaches it at the first 
 is within both. A run that never does counts as infinitely many motions (null in the JSON when that
 is the median); a motion count without an estimate counts as an infinite error. Planning seconds are per call, on
 one core (``OMP_NUM_THREADS``/BLAS threads are not restricted: set them to 1 for a strict figure).
+``--store DIR`` keeps every finished episode (``arc_env.episodes``) and reuses it, so a long run can be
+interrupted and resumed; ``--workers N`` runs N episodes at once (one renderer thread each).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 import cv2
@@ -29,49 +30,10 @@ import numpy as np
 from reproduce_paper import error_plot  # scripts/ is on sys.path when run as a script
 
 import arc_env  # noqa: F401  (chooses the GL backend before MuJoCo loads)
-from arc_env.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M, ArcCalibEnv, EnvConfig, benchmark_camera_pose
-from arc_env.scene import SceneConfig
-from planners.informed_planner import InformedPlanner
-from planners.random_planner import RandomPlanner
+from arc_env.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M
+from arc_env.episodes import EpisodeSpec, EpisodeStore, commits_used, padded_curve, run_episodes
 
-PLANNERS = {"random": RandomPlanner, "informed": InformedPlanner}
-
-
-
-def run_episode(planner_name: str, pose: int, seed: int, n_motions: int, width: int, height: int) -> dict:
-    """One episode: the true error after every executed motion, planning times, collision re-checks."""
-    config = EnvConfig(scene=SceneConfig(width=width, height=height), max_motions=n_motions,
-                       terminate_on_convergence=False)
-    env = ArcCalibEnv(config)
-    out: dict = {"errors": [], "planning": [], "in_collision": 0, "refused": 0, "seconds": 0.0}
-    try:
-        started = time.perf_counter()
-        obs, _ = env.reset(seed=1000 * pose + seed,
-                           options={"camera_pose": benchmark_camera_pose(pose, config.camera_target)})
-        planner = PLANNERS[planner_name](env, np.random.default_rng(1000 * pose + seed))
-        while len(out["errors"]) < n_motions:
-            t0 = time.perf_counter()
-            action = planner.plan(obs)
-            out["planning"].append(time.perf_counter() - t0)
-            obs, _, _, truncated, info = env.step(action)
-            if info["refused"]:
-                out["refused"] += 1
-                if truncated:
-                    break
-                continue
-            q, joint, delta = env.executed[-1]
-            assert env.checker is not None
-            free, _ = env.checker.sweep_free(q, joint, delta, 0.002)
-            transit_free = all(env.checker.path_free(a, b, 0.002)[0]
-                               for a, b in zip(env.last_transit.waypoints[:-1], env.last_transit.waypoints[1:],
-                                               strict=True))
-            out["in_collision"] += int(not (free and transit_free))
-            out["errors"].append((info["rot_error_rad"], info["trans_error_m"])
-                                 if info["rot_error_rad"] is not None else (np.inf, np.inf))
-        out["seconds"] = time.perf_counter() - started
-    finally:
-        env.close()
-    return out
+PLANNERS = ("random", "informed")
 
 
 def motions_to_paper_accuracy(errors: list[tuple[float, float]]) -> float:
@@ -90,11 +52,12 @@ def summarize(runs: list[dict], n_motions: int) -> dict:
     """Median errors per motion count, motions to paper accuracy, planning time, collisions."""
     errors = {}
     for k in range(1, n_motions + 1):
-        at_k = [r["errors"][k - 1] for r in runs if len(r["errors"]) >= k]
+        at_k = [padded_curve(r, n_motions)[k - 1] for r in runs]
         errors[str(k)] = {"rot_median_rad": _median([e[0] for e in at_k]),
                           "trans_median_m": _median([e[1] for e in at_k])}
     return {"errors": errors,
-            "motions_to_paper_accuracy_median": _median([motions_to_paper_accuracy(r["errors"]) for r in runs]),
+            "motions_to_paper_accuracy_median": _median([motions_to_paper_accuracy(padded_curve(r, n_motions))
+                                                         for r in runs]),
             "executed_in_collision": int(sum(r["in_collision"] for r in runs)),
             "refused": int(sum(r["refused"] for r in runs))}
 
@@ -103,7 +66,7 @@ def plot(summary: dict, n_motions: int, path: Path) -> None:
     """Median rotation and translation error against motions, both planners (the paper's Fig. 7)."""
     curves = {name: {"rot": [summary[name]["errors"][str(k)]["rot_median_rad"] for k in range(1, n_motions + 1)],
                      "trans": [summary[name]["errors"][str(k)]["trans_median_m"] for k in range(1, n_motions + 1)]}
-              for name in PLANNERS}
+              for name in summary if name in PLANNERS}
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), error_plot(curves)):
         raise OSError(f"OpenCV could not write {path}")
@@ -128,30 +91,34 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--plot", type=Path, default=Path("bench_out/compare_planners.png"),
                         help="PNG of median error vs motions (default bench_out/compare_planners.png)")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
+    parser.add_argument("--workers", type=int, default=1, help="episodes run in parallel processes (default 1)")
+    parser.add_argument("--store", type=Path, help="keep finished episodes here and reuse them (resumable runs; "
+                        "shared with bench_episode.py and reproduce_paper.py)")
     args = parser.parse_args(argv)
-    runs: dict[str, list[dict]] = {name: [] for name in PLANNERS}
+    specs = {(name, pose, seed): EpisodeSpec(name, pose, seed, args.motions, args.width, args.height)
+             for pose in range(args.poses) for seed in range(args.seeds) for name in PLANNERS}
     print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, {args.width}x{args.height}")
     print(f"{'planner':>8} {'pose':>4} {'seed':>4} {'@3':>17} {'@6':>17} {'@10':>17} {'final':>17} "
-          f"{'to paper':>8} {'plan med s':>10} {'refused':>7} {'collide':>7} {'sec':>6}")
-    fewer = []
-    for pose in range(args.poses):
-        for seed in range(args.seeds):
-            reached = {}
-            for name in PLANNERS:
-                r = run_episode(name, pose, seed, args.motions, args.width, args.height)
-                runs[name].append(r)
-                reached[name] = motions_to_paper_accuracy(r["errors"])
-                cells = []
-                for k in (3, 6, 10, len(r["errors"])):
-                    if 1 <= k <= len(r["errors"]):
-                        rot, trans = r["errors"][k - 1]
-                        cells.append(f"{rot:>8.1e} {trans * 1e3:>6.1f}mm")
-                    else:
-                        cells.append(f"{'-':>17}")
-                print(f"{name:>8} {pose:>4} {seed:>4} {' '.join(cells)} {reached[name]:>8.0f} "
-                      f"{_median(r['planning']):>10.3f} {r['refused']:>7} {r['in_collision']:>7} "
-                      f"{r['seconds']:>6.0f}", flush=True)
-            fewer.append(reached["informed"] < reached["random"])
+          f"{'to paper':>8} {'plan med s':>10} {'refused':>7} {'collide':>7} {'sec':>6}  commit")
+
+    def show(r: dict, from_store: bool) -> None:
+        curve = padded_curve(r, args.motions)
+        cells = []
+        for k in (3, 6, 10, args.motions):
+            rot, trans = curve[k - 1] if k <= args.motions else (np.inf, np.inf)
+            cells.append(f"{rot:>8.1e} {trans * 1e3:>6.1f}mm" if np.isfinite(rot) else f"{'-':>17}")
+        spec = r["spec"]
+        print(f"{spec['method']:>8} {spec['pose']:>4} {spec['seed']:>4} {' '.join(cells)} "
+              f"{motions_to_paper_accuracy(curve):>8.0f} {_median(r['planning']):>10.3f} {r['refused']:>7} "
+              f"{r['in_collision']:>7} {r['seconds']['total']:>6.0f}  {r['commit']}{' (stored)' * from_store}"
+              f"{'  ' + r['note'] if r['note'] else ''}", flush=True)
+
+    records = run_episodes(specs.values(), EpisodeStore(args.store) if args.store else None, args.workers, show)
+    runs = {name: [records[specs[name, p, s]] for p in range(args.poses) for s in range(args.seeds)]
+            for name in PLANNERS}
+    reached = {name: [motions_to_paper_accuracy(padded_curve(r, args.motions)) for r in rs]
+               for name, rs in runs.items()}
+    fewer = [i < r for i, r in zip(reached["informed"], reached["random"], strict=True)]
     summary: dict = {name: summarize(rs, args.motions) for name, rs in runs.items()}
     summary["informed_fewer_motions_fraction"] = float(np.mean(fewer))
     summary["planning_seconds_median"] = {name: _median([t for r in rs for t in r["planning"]])
@@ -159,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     summary["planning_seconds_max"] = {name: max((t for r in rs for t in r["planning"]), default=float("nan"))
                                        for name, rs in runs.items()}
     print()
+    print(f"code: {commits_used(records.values())}")
     for name in PLANNERS:
         s = summary[name]
         marks = [k for k in (1, 3, 6, 10, 25) if k <= args.motions]

@@ -23,14 +23,15 @@ Writes ``OUT/errors.png`` (median error vs number of motions, log scale, with th
 (matplotlib is not a dependency).
 
 ``--quick``: 2 poses x 1 seed at 960x540, 10 motions, 5 IoU configurations (a few minutes).
+``--store DIR`` keeps every finished episode (``arc_env.episodes``) and reuses it, so a long run can be
+interrupted and resumed (and shares runs with ``bench_episode.py`` and ``compare_planners.py``);
+``--workers N`` runs N episodes at once (one renderer thread each). The IoU study is recomputed.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -39,15 +40,10 @@ import numpy as np
 import arc_env  # noqa: F401  (chooses the GL backend before MuJoCo loads)
 from arc_env.demo import mask_iou
 from arc_env.env import ArcCalibEnv, EnvConfig, benchmark_camera_pose
-from arc_env.marker_baseline import MarkerBaseline
-from arc_env.marker_board import MarkerBoard
+from arc_env.episodes import METHODS, EpisodeSpec, EpisodeStore, commits_used, padded_curve, run_episodes
 from arc_env.scene import SceneConfig
-from planners.informed_planner import InformedPlanner
-from planners.random_planner import RandomPlanner
-from solver.errors import ArcCalibError
 
 CHECKPOINTS = (3, 10, 25)
-METHODS = ("random", "informed", "marker")
 #: The paper's simulation figures (§VI-A, mean over 10 poses x 5 runs, random selection): n -> (rad, m).
 PAPER_SIM = {3: (0.0225, 0.0786), 25: (0.0042, 0.0065)}
 #: The paper's real-world IoU (§VI-B): ARC-Calib and AprilTag hand-eye (ROS hand_eye_calibration).
@@ -56,70 +52,12 @@ COLOURS = {"random": (200, 110, 30), "informed": (40, 160, 40), "marker": (40, 4
 
 
 
-def _scene(args: argparse.Namespace, board: bool = False) -> SceneConfig:
-    return SceneConfig(width=args.width, height=args.height, marker_board=MarkerBoard() if board else None)
-
-
-def _reset(env: ArcCalibEnv, pose: int, seed: int) -> dict:
-    obs, _ = env.reset(seed=1000 * pose + seed,
-                       options={"camera_pose": benchmark_camera_pose(pose, env.config.camera_target)})
-    return obs
-
-
-def run_arc(planner_cls: Callable, pose: int, seed: int, args: argparse.Namespace) -> dict:
-    """One ARC-Calib episode: the error after each motion (inf without an estimate) and the final estimate."""
-    env = ArcCalibEnv(EnvConfig(scene=_scene(args), max_motions=args.motions, terminate_on_convergence=False))
-    curve: list[tuple[float, float]] = []
-    note = ""
-    started = time.perf_counter()
-    try:
-        obs = _reset(env, pose, seed)
-        planner = planner_cls(env, np.random.default_rng(1000 * pose + seed))
-        info: dict = {"rot_error_rad": None, "trans_error_m": None, "T_camera_base": None}
-        while len(curve) < args.motions:
-            try:
-                action = planner.plan(obs)
-            except ArcCalibError as exc:
-                note = f"planner stopped after {len(curve)} motions: {exc}"
-                break
-            obs, _, _, truncated, info = env.step(action)
-            if info["refused"]:
-                if truncated:
-                    note = f"{info['n_refused']} refused actions"
-                    break
-                continue
-            curve.append((info["rot_error_rad"], info["trans_error_m"]) if info["rot_error_rad"] is not None
-                         else (np.inf, np.inf))
-        last = curve[-1] if curve else (np.inf, np.inf)
-        curve += [last] * (args.motions - len(curve))  # no more motions: the estimate stays as it was
-        T = info["T_camera_base"]
-    finally:
-        env.close()
-    return {"curve": curve, "T": T, "seconds": time.perf_counter() - started, "note": note}
-
-
-def run_marker(pose: int, seed: int, args: argparse.Namespace) -> dict:
-    """One marker-baseline run: the error from the first n board poses for n = 1..motions."""
-    env = ArcCalibEnv(EnvConfig(scene=_scene(args, board=True)))
-    started = time.perf_counter()
-    try:
-        _reset(env, pose, seed)
-        baseline = MarkerBaseline(env, np.random.default_rng(1000 * pose + seed))
-        run = baseline.run(args.motions)
-        curve = [(np.inf, np.inf) if e is None else e for e in baseline.errors(run)]
-        note = f"{len(run.views)} views, {run.rejected} rejected" if run.rejected or len(curve) < args.motions else ""
-        last = curve[-1] if curve else (np.inf, np.inf)
-        curve += [last] * (args.motions - len(curve))
-    finally:
-        env.close()
-    return {"curve": curve, "T": run.T_camera_base, "seconds": time.perf_counter() - started, "note": note}
-
-
 def iou_study(pose: int, seed: int, estimates: dict[str, np.ndarray | None], args: argparse.Namespace) -> dict:
     """Mean IoU of each estimate's robot mask against the true one over random configurations."""
-    env = ArcCalibEnv(EnvConfig(scene=_scene(args)))
+    env = ArcCalibEnv(EnvConfig(scene=SceneConfig(width=args.width, height=args.height)))
     try:
-        _reset(env, pose, seed)
+        env.reset(seed=1000 * pose + seed,
+                  options={"camera_pose": benchmark_camera_pose(pose, env.config.camera_target)})
         s = env.scene
         rng = np.random.default_rng(5000 + 1000 * pose + seed)
         ious: dict[str, list[float]] = {m: [] for m in estimates}
@@ -147,8 +85,9 @@ def _median(values: list[float]) -> float:
 
 def summarize(runs: list[dict], n_motions: int) -> dict:
     """Median (rot, trans) per number of motions 1..n_motions."""
-    return {"rot": [_median([r["curve"][n][0] for r in runs]) for n in range(n_motions)],
-            "trans": [_median([r["curve"][n][1] for r in runs]) for n in range(n_motions)]}
+    curves = [padded_curve(r, n_motions) for r in runs]
+    return {"rot": [_median([c[n][0] for c in curves]) for n in range(n_motions)],
+            "trans": [_median([c[n][1] for c in curves]) for n in range(n_motions)]}
 
 
 # -- plots (OpenCV) ----------------------------------------------------------------------------
@@ -288,41 +227,43 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("bench_out/reproduce"), help="directory for PNGs and table")
     parser.add_argument("--quick", action="store_true", help="2 poses x 1 seed, 960x540, 10 motions, 5 IoU configs")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
+    parser.add_argument("--workers", type=int, default=1, help="episodes run in parallel processes (default 1)")
+    parser.add_argument("--store", type=Path, help="keep finished episodes here and reuse them (resumable runs; "
+                        "shared with bench_episode.py and compare_planners.py)")
     args = parser.parse_args(argv)
     if args.quick:
         args.poses, args.seeds, args.motions, args.width, args.height, args.iou_configs = 2, 1, 10, 960, 540, 5
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    methods = list(dict.fromkeys(m.strip() for m in args.methods.split(",") if m.strip()))
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
         parser.error(f"unknown method(s) {unknown}; valid: {', '.join(METHODS)}")
-    runners: dict[str, Callable[[int, int], dict]] = {}
-    for m in methods:
-        if m == "random":
-            runners[m] = lambda p, s: run_arc(RandomPlanner, p, s, args)
-        elif m == "informed":
-            runners[m] = lambda p, s: run_arc(InformedPlanner, p, s, args)
-        else:
-            runners[m] = lambda p, s: run_marker(p, s, args)
-    if not runners:
-        print("no method to run")
-        return 1
     print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, {args.width}x{args.height}, "
-          f"methods {', '.join(runners)}, IoU at {args.iou_configs} configurations", flush=True)
+          f"methods {', '.join(methods)}, IoU at {args.iou_configs} configurations", flush=True)
     checkpoints = [k for k in CHECKPOINTS if k <= args.motions]
+    specs = {(m, pose, seed): EpisodeSpec(m, pose, seed, args.motions, args.width, args.height)
+             for pose in range(args.poses) for seed in range(args.seeds) for m in methods}
+
+    def show(r: dict, from_store: bool) -> None:
+        spec = r["spec"]
+        print(f"  {spec['method']} pose {spec['pose']} seed {spec['seed']}: {r['seconds']['total']:.0f} s, "
+              f"{r['commit']}{' (stored)' * from_store}", flush=True)
+
+    records = run_episodes(specs.values(), EpisodeStore(args.store) if args.store else None, args.workers, show)
     print(f"{'method':>8} {'pose':>4} {'seed':>4} " + " ".join(f"{'@' + str(k):>19}" for k in checkpoints)
           + f" {'IoU':>6} {'sec':>6}  note", flush=True)
-    runs: dict[str, list[dict]] = {m: [] for m in runners}
-    ious: dict[str, list[float]] = {m: [] for m in runners}
+    runs: dict[str, list[dict]] = {m: [] for m in methods}
+    ious: dict[str, list[float]] = {m: [] for m in methods}
     for pose in range(args.poses):
         for seed in range(args.seeds):
-            results = {m: run(pose, seed) for m, run in runners.items()}
-            iou = iou_study(pose, seed, {m: r["T"] for m, r in results.items()}, args)
+            results = {m: records[specs[m, pose, seed]] for m in methods}
+            iou = iou_study(pose, seed, {m: None if r["T_camera_base"] is None else np.asarray(r["T_camera_base"])
+                                         for m, r in results.items()}, args)
             for m, r in results.items():
                 runs[m].append(r)
                 ious[m].append(iou[m])
-                errs = " ".join(f"{r['curve'][k - 1][0]:>9.2e} {r['curve'][k - 1][1] * 1e3:>6.2f}mm"
-                                for k in checkpoints)
-                print(f"{m:>8} {pose:>4} {seed:>4} {errs} {iou[m]:>6.3f} {r['seconds']:>6.1f}  {r['note']}",
+                curve = padded_curve(r, args.motions)
+                errs = " ".join(f"{curve[k - 1][0]:>9.2e} {curve[k - 1][1] * 1e3:>6.2f}mm" for k in checkpoints)
+                print(f"{m:>8} {pose:>4} {seed:>4} {errs} {iou[m]:>6.3f} {r['seconds']['total']:>6.1f}  {r['note']}",
                       flush=True)
     summary = {m: summarize(rs, args.motions) for m, rs in runs.items()}
     iou_mean = {m: float(np.nanmean(v)) if v else float("nan") for m, v in ious.items()}
@@ -332,8 +273,9 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(table)
     print()
+    print(f"code: {commits_used(records.values())}")
     for m, rs in runs.items():
-        print(f"{m}: median {np.median([r['seconds'] for r in rs]):.1f} s per run")
+        print(f"{m}: median {np.median([r['seconds']['total'] for r in rs]):.1f} s per run")
     args.out.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(args.out / "errors.png"), error_plot(summary))
     cv2.imwrite(str(args.out / "iou.png"), iou_plot(iou_mean))
