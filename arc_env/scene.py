@@ -304,7 +304,7 @@ class Scene:
                                               self._kin.xpos[self.base_body].copy())
         self.T_camera_base = np.eye(4)
         self._surface: dict[int, tuple[NDArray[np.int64], FloatArray]] = {}
-        self._renderer: mujoco.Renderer | None = None
+        self._renderers: dict[int, mujoco.Renderer] = {}  # by downscale factor
         self._scene_option = mujoco.MjvOption()
         for g in range(3, 6):  # collision geoms live in group 3 by convention
             self._scene_option.geomgroup[g] = 0
@@ -423,19 +423,23 @@ class Scene:
     # -- rendering -----------------------------------------------------------------------------
     @property
     def renderer(self) -> mujoco.Renderer:
-        """The offscreen renderer (created on first use)."""
-        if self._renderer is None:
+        """The full-resolution offscreen renderer (created on first use)."""
+        return self._renderer(1)
+
+    def _renderer(self, downscale: int) -> mujoco.Renderer:
+        if downscale not in self._renderers:
+            h, w = max(1, self.config.height // downscale), max(1, self.config.width // downscale)
             try:
-                self._renderer = mujoco.Renderer(self.model, self.config.height, self.config.width)
+                self._renderers[downscale] = mujoco.Renderer(self.model, h, w)
             except Exception as exc:
                 raise RuntimeError(
                     f"offscreen rendering failed with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r}: {exc}. "
                     "Install Mesa's EGL (apt libegl1) or OSMesa (libosmesa6) and set MUJOCO_GL."
                 ) from exc
-        return self._renderer
+        return self._renderers[downscale]
 
-    def _update(self, T_camera_base: FloatArray | None) -> mujoco.Renderer:
-        r = self.renderer
+    def _update(self, T_camera_base: FloatArray | None, downscale: int = 1) -> mujoco.Renderer:
+        r = self._renderer(downscale)
         if T_camera_base is None:
             r.update_scene(self.data, CAMERA_NAME, scene_option=self._scene_option)
         else:
@@ -452,9 +456,15 @@ class Scene:
         r.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = int(self.config.reflections)
         return r
 
-    def render(self) -> NDArray[np.uint8]:
-        """The camera's RGB image of the current state, (H, W, 3) uint8."""
-        r = self._update(None)
+    def render(self, downscale: int = 1) -> NDArray[np.uint8]:
+        """The camera's RGB image of the current state, (H // downscale, W // downscale, 3) uint8.
+
+        A ``downscale`` above 1 is a thumbnail of the same view (same field of view, fewer pixels),
+        for cheap image tests; the tracker always gets full resolution.
+        """
+        if int(downscale) != downscale or downscale < 1:
+            raise InvalidInputError(f"downscale must be a positive integer, got {downscale!r}")
+        r = self._update(None, int(downscale))
         r.disable_segmentation_rendering()
         return r.render().copy()
 
@@ -473,10 +483,10 @@ class Scene:
         return is_geom & robot_geom[np.where(geom_ids >= 0, geom_ids, self.model.ngeom)]
 
     def close(self) -> None:
-        """Free the renderer's GL context."""
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        """Free the renderers' GL contexts."""
+        for r in self._renderers.values():
+            r.close()
+        self._renderers.clear()
 
     # -- surface points (oracle keypoints) -------------------------------------------------------
     def surface_points(self, joint: int) -> tuple[NDArray[np.int64], FloatArray]:

@@ -50,7 +50,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from planners.ik import IKSolver, target_in_view
-from planners.random_planner import image_change
+from planners.random_planner import image_change, prepare_image_test
 from planners.sampling import check_sampling, random_delta, random_motion, random_q
 from solver.camera import normalized_from_pixels
 from solver.errors import ArcCalibError, InvalidInputError
@@ -173,6 +173,7 @@ class InformedPlanner:
         self._tracks_per_px2 = self.config.prior_tracks / (
             self.config.prior_area * env.intrinsics.width * env.intrinsics.height)
         self._sphere = fibonacci_sphere(2000)
+        prepare_image_test(env.scene)
         #: the candidates scored by the last ``plan`` call (best first), for inspection.
         self.last_candidates: list[ScoredMotion] = []
 

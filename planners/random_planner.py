@@ -54,19 +54,28 @@ class RandomPlannerConfig:
         check_sampling(self.delta_range, self.limit_margin)
 
 
+#: Thumbnails for the image test are this many times smaller per side than the camera image.
+IMAGE_TEST_DOWNSCALE = 4
+
+
 def image_change(scene: Scene, q: FloatArray, joint: int, delta: float) -> float:
     """Fraction of pixels that change (by more than 12 of 255 in some channel) between a sweep's end frames.
 
     The image test a real robot does with two snapshots: renders the sweep (q (n,) rad, joint,
-    delta rad) at 0 and delta, then puts the arm back where it was.
+    delta rad) at 0 and delta as thumbnails (``IMAGE_TEST_DOWNSCALE``), then puts the arm back.
     """
     saved = scene.q
     frames = []
     for d in (0.0, delta):
         scene.set_swept(q, joint, d)
-        frames.append(scene.render().astype(np.int16))
+        frames.append(scene.render(IMAGE_TEST_DOWNSCALE).astype(np.int16))
     scene.set_q(saved)
     return float((np.abs(frames[0] - frames[1]).max(axis=2) > 12).mean())
+
+
+def prepare_image_test(scene: Scene) -> None:
+    """Create the thumbnail renderer now (about 1 s of GL set-up), so no planning call pays for it."""
+    scene.render(IMAGE_TEST_DOWNSCALE)
 
 
 class RandomPlanner:
@@ -83,6 +92,7 @@ class RandomPlanner:
         self.env = env
         self.rng = rng if rng is not None else np.random.default_rng(env.np_random.integers(2**31 - 1))
         self.config = config or RandomPlannerConfig()
+        prepare_image_test(env.scene)
 
     def _sample(self) -> tuple[FloatArray, int, float] | None:
         c, env = self.config, self.env.config

@@ -89,6 +89,19 @@ def test_a_wrong_pose_gives_a_different_mask(panda):
     np.testing.assert_array_equal(panda.robot_mask(), true)  # the true camera was restored
 
 
+def test_a_thumbnail_is_the_same_view_with_fewer_pixels(panda):
+    full = panda.render()
+    thumb = panda.render(4)
+    assert thumb.shape == (90, 160, 3)
+    shrunk = cv2.resize(full, (160, 90), interpolation=cv2.INTER_AREA)
+    robot = cv2.resize(panda.robot_mask().astype(np.uint8), (160, 90), interpolation=cv2.INTER_NEAREST) > 0
+    diff = np.abs(shrunk.astype(int) - thumb.astype(int)).max(axis=2)
+    # on the robot, pixels differing strongly: 0.3% here; a view shifted by one thumbnail pixel gives 14%
+    assert np.mean(diff[robot] > 60) < 0.05
+    with pytest.raises(InvalidInputError, match="downscale"):
+        panda.render(0)
+
+
 def test_speckle_gives_the_tracker_corners_on_the_robot(panda):
     grey = cv2.cvtColor(panda.render(), cv2.COLOR_RGB2GRAY)
     mask = panda.robot_mask().astype(np.uint8)
