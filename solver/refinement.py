@@ -166,11 +166,11 @@ class _Problem:
         self.tracks = tracks
         self.T0 = T0
         P = tracks.uv.shape[0]
-        rows = np.repeat(np.arange(2 * P).reshape(P, 2), 9, axis=1).reshape(P, 2, 9)
         cols = np.empty((P, 2, 9), dtype=np.int64)
         cols[:, :, :6] = np.arange(6)
         cols[:, :, 6:] = (6 + 3 * tracks.track)[:, None, None] + np.arange(3)
-        self.rows, self.cols = rows.ravel(), cols.ravel()
+        self.cols = cols.ravel()  # CSR column indices: every row has the 6 pose entries and its point's 3
+        self.indptr = np.arange(0, 9 * 2 * P + 1, 9)
         self.shape = (2 * P, 6 + 3 * tracks.n_tracks)
 
     def pose(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -182,9 +182,15 @@ class _Problem:
         R, t = self.pose(x)
         q = x[6:].reshape(-1, 3)[tr.track]
         y = (q - t) @ R  # R^T (q - t): the base-frame point at delta = 0
-        pivot = tr.pivot[tr.track]
-        p_base = np.einsum("pij,pj->pi", tr.rot, y - pivot) + pivot
+        p_base = np.matmul(tr.rot, (y - self._pivot)[:, :, None])[:, :, 0] + self._pivot
         return p_base @ R.T + t, R, t, q
+
+    @property
+    def _pivot(self) -> FloatArray:
+        """(P, 3) each observation's d_b."""
+        if not hasattr(self, "_pivot_p"):
+            self._pivot_p = self.tracks.pivot[self.tracks.track]
+        return self._pivot_p
 
     def residuals(self, x: FloatArray) -> FloatArray:
         """(2P,) float64, px: reprojection errors."""
@@ -193,24 +199,29 @@ class _Problem:
 
     def jacobian(self, x: FloatArray) -> sp.csr_matrix:
         """(2P, 6 + 3T) sparse Jacobian of ``residuals``."""
-        data = self.jacobian_blocks(x)
-        return sp.csr_matrix((data.ravel(), (self.rows, self.cols)), shape=self.shape)
+        return sp.csr_matrix((self.jacobian_blocks(x).ravel(), self.cols, self.indptr), shape=self.shape)
 
     def jacobian_blocks(self, x: FloatArray) -> FloatArray:
-        """(P, 2, 9): each observation's derivatives by (omega, tau) and by its own track's point q."""
+        """(P, 2, 9): each observation's derivatives by (omega, tau) and by its own track's point q.
+
+        With D the (2, 3) derivative of the pixel by the camera point and M = R Rot_k R^T, the
+        camera point's derivatives are -[pc - t]x + M [q - t]x by omega (times the left Jacobian of
+        SO(3)), I - M by tau and M by q; a row v of D times [a]x is v x a.
+        """
         tr = self.tracks
         pc, R, t, q = self._camera_points(x)
-        z = pc[:, 2]
-        dproj = np.zeros((pc.shape[0], 2, 3))
-        dproj[:, 0, 0] = 1 / z
-        dproj[:, 1, 1] = 1 / z
-        dproj[:, 0, 2] = -pc[:, 0] / z**2
-        dproj[:, 1, 2] = -pc[:, 1] / z**2
-        dproj *= tr.focal[None, :, None]
-        M = np.einsum("ij,pjk,lk->pil", R, tr.rot, R)  # R Rot_k R^T
-        d_omega = (-skew(pc - t) + M @ skew(q - t)) @ _left_jacobian(x[:3])
-        d_tau = np.eye(3) - M
-        return np.concatenate([dproj @ d_omega, dproj @ d_tau, dproj @ M], axis=2)
+        P = pc.shape[0]
+        inv_z = 1.0 / pc[:, 2]
+        D = np.zeros((P, 2, 3))
+        D[:, 0, 0] = tr.focal[0] * inv_z
+        D[:, 1, 1] = tr.focal[1] * inv_z
+        D[:, 0, 2] = -tr.focal[0] * pc[:, 0] * inv_z**2
+        D[:, 1, 2] = -tr.focal[1] * pc[:, 1] * inv_z**2
+        DM = np.matmul((D.reshape(2 * P, 3) @ R).reshape(P, 2, 3), tr.rot).reshape(2 * P, 3) @ R.T  # D M
+        DM = DM.reshape(P, 2, 3)
+        d_omega = np.cross(DM, (q - t)[:, None, :]) - np.cross(D, (pc - t)[:, None, :])
+        d_omega = (d_omega.reshape(2 * P, 3) @ _left_jacobian(x[:3])).reshape(P, 2, 3)
+        return np.concatenate([d_omega, D - DM, DM], axis=2)
 
 
 @dataclass(frozen=True)
