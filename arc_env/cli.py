@@ -125,11 +125,14 @@ def main(argv: list[str] | None = None) -> int:
     from arc_env.calibrate import add_arguments, add_result_arguments
 
     add_arguments(calibrate)
-    run = sub.add_parser("run", help="calibrate online: the random planner drives a robot through a driver")
+    run = sub.add_parser("run", help="calibrate online: a planner drives a robot through a driver")
     run.add_argument("--driver", required=True, metavar="MODULE:CLASS",
                      help="a RobotDriver class or factory (docs/driver.md), e.g. arc_env.driver:SimulatedDriver")
     run.add_argument("--motions", type=int, default=25, help="motion budget (default 25)")
     run.add_argument("--seed", type=int, default=0, help="planner seed (default 0)")
+    run.add_argument("--planner", choices=("random", "informed"), default="random",
+                     help="motion selection (default random, the paper's); informed scores candidates by the "
+                          "information they add (no image test: the twin has no camera image)")
     run.add_argument("--all-motions", action="store_true", help="do not stop at convergence")
     run.add_argument("--record", metavar="DIR", help="also save the sweeps as a recording in DIR")
     add_result_arguments(run)

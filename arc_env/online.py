@@ -1,4 +1,4 @@
-"""``arc-calib run --driver module:Class``: calibrate online, the random planner driving a ``RobotDriver``.
+"""``arc-calib run --driver module:Class``: calibrate online, a planner (random or informed) driving a ``RobotDriver``.
 
 The planner proposes exploratory motions that the driver's robot model (the digital twin of
 ``DriverEnv``) says are within the limits and collision-free over the whole sweep; once an estimate
@@ -23,6 +23,7 @@ from arc_env.calibrate import CalibrationRun, MotionDiagnostic, check_output, co
 from arc_env.driver import DriverEnv, RobotDriver, Sweep
 from arc_env.env import EnvConfig
 from arc_env.recording import RecordingWriter
+from planners.informed_planner import InformedPlanner, InformedPlannerConfig
 from planners.random_planner import RandomPlanner, RandomPlannerConfig
 from solver.errors import ArcCalibError, InvalidInputError
 
@@ -66,7 +67,11 @@ def run_online(args: argparse.Namespace) -> int:
                     on_sweep=on_sweep)
     try:
         obs, _ = env.reset(seed=args.seed)
-        planner = RandomPlanner(env, np.random.default_rng(args.seed), RandomPlannerConfig(max_image_tests=0))
+        # the twin has no camera image, so neither planner may run its image test
+        rng = np.random.default_rng(args.seed)
+        planner = (InformedPlanner(env, rng, InformedPlannerConfig(bootstrap_image_tests=0))
+                   if getattr(args, "planner", "random") == "informed"
+                   else RandomPlanner(env, rng, RandomPlannerConfig(max_image_tests=0)))
         diagnostics: list[MotionDiagnostic] = []
         seconds = {"robot": 0.0, "tracking": 0.0, "solver": 0.0}
         while True:

@@ -173,7 +173,8 @@ class InformedPlanner:
         self._tracks_per_px2 = self.config.prior_tracks / (
             self.config.prior_area * env.intrinsics.width * env.intrinsics.height)
         self._sphere = fibonacci_sphere(2000)
-        prepare_image_test(env.scene)
+        if self.config.bootstrap_image_tests:
+            prepare_image_test(env.scene)
         #: the candidates scored by the last ``plan`` call (best first), for inspection.
         self.last_candidates: list[ScoredMotion] = []
 

@@ -92,7 +92,8 @@ class RandomPlanner:
         self.env = env
         self.rng = rng if rng is not None else np.random.default_rng(env.np_random.integers(2**31 - 1))
         self.config = config or RandomPlannerConfig()
-        prepare_image_test(env.scene)
+        if self.config.max_image_tests:
+            prepare_image_test(env.scene)
 
     def _sample(self) -> tuple[FloatArray, int, float] | None:
         c, env = self.config, self.env.config

@@ -84,3 +84,29 @@ def test_run_with_a_bad_driver_spec(tmp_path, capsys):
     assert "constructing it failed" in capsys.readouterr().err
     assert main(["run", "--driver", "collections:OrderedDict", "--output", str(tmp_path / "r.json")]) == 2
     assert "not a RobotDriver" in capsys.readouterr().err
+
+
+def test_run_with_the_informed_planner_drives_the_robot(tmp_path, capsys):
+    rec = tmp_path / "rec"
+    code = main(["run", "--driver", "tests.arc_env.test_driver:small_driver", "--planner", "informed",
+                 "--motions", "3", "--output", str(tmp_path / "result.json"), "--record", str(rec), "--all-motions"])
+    captured = capsys.readouterr()
+    assert code == 1, captured.out + captured.err  # 320x180 is too small to calibrate; the plumbing runs
+    motions = read_recording(rec).motions
+    assert len(motions) == 3 and all(m.joint is not None for m in motions)
+
+
+def test_the_informed_planner_never_renders_the_twin():
+    from planners.informed_planner import InformedPlanner, InformedPlannerConfig
+
+    d = small_driver()
+    env = DriverEnv(d, EnvConfig(max_motions=3))
+    try:
+        obs, _ = env.reset(seed=0)
+        env.scene.render = lambda *a, **k: pytest.fail("the twin was rendered")  # it has no camera image
+        planner = InformedPlanner(env, np.random.default_rng(0), InformedPlannerConfig(bootstrap_image_tests=0))
+        action = planner.plan(obs)
+        assert not env.validate(action["Q"], int(action["J"]), float(action["delta"][0]))
+    finally:
+        env.close()
+        d.close()
