@@ -468,6 +468,21 @@ class Scene:
         r.disable_segmentation_rendering()
         return r.render().copy()
 
+    def depth(self, T_camera_base: FloatArray | None = None, downscale: int = 1) -> NDArray[np.float32]:
+        """Depth along the optical axis of every pixel, (H // downscale, W // downscale) float32, metres.
+
+        Seen by the true camera or one at ``T_camera_base`` (e.g. an estimate, to predict what it
+        would see); the far clipping distance where nothing is hit.
+        """
+        if int(downscale) != downscale or downscale < 1:
+            raise InvalidInputError(f"downscale must be a positive integer, got {downscale!r}")
+        r = self._update(T_camera_base, int(downscale))
+        r.enable_depth_rendering()
+        try:
+            return r.render().copy()
+        finally:
+            r.disable_depth_rendering()
+
     def robot_mask(self, T_camera_base: FloatArray | None = None) -> NDArray[np.bool_]:
         """Pixels showing the robot, (H, W) bool, seen by the true camera or one at ``T_camera_base``."""
         r = self._update(T_camera_base)

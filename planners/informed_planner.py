@@ -20,7 +20,12 @@ moves its points in a plane parallel to the image, which leaves the depth along 
 unknown points (the marginalization removes it); tiny projected circles carry little information
 per pixel of noise; points that leave the image or go behind the camera are dropped from the
 prediction, and a candidate whose moving links are not in view at both ends of the sweep (with a
-margin) is not considered. Occlusion of the moving links by other links is not predicted.
+margin) is not considered. Occlusion (by other links, or a link's own far side) is predicted for the
+best valid candidates only, since it needs rendering: depth images rendered with T at a few frames
+of the sweep hide the points behind a nearer surface; as hiding observations can only lower the
+gain, the unoccluded gain bounds it from above, and a rescored candidate that falls below the next
+one gives way to it (lazy evaluation); after ``occlusion_checks`` rescorings the best rescored
+candidate is taken.
 
 Candidates. Random (Q, J, Delta) as in the paper, plus IK-seeded ones: mink places the arm's last
 link at a random pixel of the central image at a depth near the arm's, seen with T, so the
@@ -62,6 +67,10 @@ if TYPE_CHECKING:
     from arc_env.env import ArcCalibEnv
 
 FloatArray = NDArray[np.float64]
+#: Depth images for the occlusion prediction are up to this many times smaller per side than the
+#: camera image, and no narrower than OCCLUSION_MIN_WIDTH px (else the whole image).
+OCCLUSION_DOWNSCALE = 4
+OCCLUSION_MIN_WIDTH = 480
 
 
 @dataclass(frozen=True)
@@ -96,6 +105,12 @@ class InformedPlannerConfig:
         changed_fraction_full: fraction of pixels changing between the sweep's end frames at
             which the image test no longer discounts a candidate (below it the score scales down:
             small moving links give few tracks).
+        occlusion_checks: valid candidates per call whose gain is recomputed with predicted
+            occlusion (depth images rendered with the estimate), best first; 0 turns it off.
+        occlusion_frames: frames of the sweep at which occlusion is predicted (evenly spread;
+            every frame takes the verdict of the nearest).
+        occlusion_tolerance_m: m; a point is hidden when the rendered surface at its pixel is
+            nearer than the point by more than this.
     """
 
     delta_range: tuple[float, float] = (0.6, 1.5)
@@ -118,6 +133,9 @@ class InformedPlannerConfig:
     bootstrap_candidates: int = 32
     bootstrap_image_tests: int = 2
     changed_fraction_full: float = 0.03
+    occlusion_checks: int = 4
+    occlusion_frames: int = 3
+    occlusion_tolerance_m: float = 0.02
 
     def __post_init__(self) -> None:
         check_sampling(self.delta_range, self.limit_margin)
@@ -129,6 +147,8 @@ class InformedPlannerConfig:
             raise InvalidInputError("noise_px and prior_std must be > 0")
         if self.bootstrap_candidates < 1 or self.bootstrap_image_tests < 0:
             raise InvalidInputError("bootstrap_candidates must be >= 1, bootstrap_image_tests >= 0")
+        if self.occlusion_checks < 0 or self.occlusion_frames < 2 or self.occlusion_tolerance_m <= 0:
+            raise InvalidInputError("need occlusion_checks >= 0, occlusion_frames >= 2, occlusion_tolerance_m > 0")
 
 
 @dataclass(frozen=True)
@@ -142,6 +162,7 @@ class ScoredMotion:
         gain: D-optimal information gain (nats); -inf when not in view.
         in_view: fraction of sampled points in view at the worse end of the sweep.
         source: "random" or "ik".
+        occlusion: whether the gain accounts for occlusion (else it is an upper bound).
     """
 
     q: FloatArray
@@ -150,6 +171,7 @@ class ScoredMotion:
     gain: float
     in_view: float
     source: str
+    occlusion: bool = False
 
 
 class InformedPlanner:
@@ -203,8 +225,8 @@ class InformedPlanner:
         return None if delta is None else (result.q, joint, delta)
 
     # -- prediction ----------------------------------------------------------------------------
-    def predicted_information(self, q: FloatArray, joint: int, delta: float, T: FloatArray
-                              ) -> tuple[FloatArray, float, float]:
+    def predicted_information(self, q: FloatArray, joint: int, delta: float, T: FloatArray,
+                              occlusion: bool = False) -> tuple[FloatArray, float, float]:
         """Fisher information (6, 6) of (omega, tau) per sampled track a motion would give seen with T.
 
         Args:
@@ -212,6 +234,8 @@ class InformedPlanner:
             joint: the joint that turns.
             delta: rad.
             T: (4, 4) the pose estimate to project with.
+            occlusion: also drop the observations that other links (or the moving links' own far
+                side) would hide, from depth images rendered with T at ``occlusion_frames`` frames.
 
         Returns:
             ((6, 6) information in (rad or m)^-2 at ``noise_px`` averaged per sampled track,
@@ -232,10 +256,15 @@ class InformedPlanner:
         for k, d in enumerate(deltas):
             s.set_swept(q, joint, d)
             uv[k], ok[k] = s.project_points(body, local, T, min_depth=0.1, margin_px=c.image_margin_px)
-        s.set_q(saved)
         in_view = float(min(ok[0].mean(), ok[-1].mean()))
         area = float(np.mean([cv2.contourArea(cv2.convexHull(uv[k][ok[k]].astype(np.float32)))
                               if ok[k].sum() >= 3 else 0.0 for k in (0, -1)]))
+        if occlusion:
+            checked = np.unique(np.linspace(0, len(deltas) - 1, c.occlusion_frames).round().astype(int))
+            seen = np.stack([self.visible_points(q, joint, deltas[k], body, local, T, uv[k]) for k in checked])
+            nearest = np.abs(np.arange(len(deltas))[:, None] - checked[None, :]).argmin(axis=1)
+            ok &= seen[nearest]
+        s.set_q(saved)
         min_frames = self.env.config.calibrator.refinement.min_track_frames
         if not (ok.sum(axis=0) >= min_frames).any():
             return np.zeros((6, 6)), in_view, area
@@ -245,6 +274,31 @@ class InformedPlanner:
         axis, point = s.axis_and_point(q, joint)
         info = pose_information(build_track_set([(axis, point, tracks)], self.env.intrinsics.focal, min_frames), T)
         return info / c.noise_px**2 / len(body), in_view, area
+
+    def visible_points(self, q: FloatArray, joint: int, delta: float, body: NDArray[np.int64], local: FloatArray,
+                       T: FloatArray, uv: FloatArray) -> NDArray[np.bool_]:
+        """(P,) bool: which body-fixed points the depth image rendered with T shows, swept by delta rad.
+
+        The arm is left at the swept state.
+
+        Args:
+            q: (n,) rad, start configuration.
+            joint: the joint that turns.
+            delta: rad, how far it has turned at the state to render.
+            body: (P,) body ids.
+            local: (P, 3) m, the points in those bodies' frames.
+            T: (4, 4) the camera pose to render with.
+            uv: (P, 2) px, the points' projections through it.
+        """
+        s = self.env.scene
+        s.set_swept(q, joint, delta)
+        scale = max(1, min(OCCLUSION_DOWNSCALE, self.env.intrinsics.width // OCCLUSION_MIN_WIDTH))
+        depth = s.depth(T, scale)
+        h, w = depth.shape
+        col = np.clip((uv[:, 0] + 0.5) / scale - 0.5, 0, w - 1).round().astype(int)
+        row = np.clip((uv[:, 1] + 0.5) / scale - 0.5, 0, h - 1).round().astype(int)
+        z = (s.points_base(body, local) @ T[:3, :3].T + T[:3, 3])[:, 2]
+        return z <= depth[row, col] + self.config.occlusion_tolerance_m
 
     def expected_tracks(self, area_px: float) -> float:
         """Tracks the bundle adjustment is expected to get from moving links covering area_px px^2.
@@ -280,14 +334,18 @@ class InformedPlanner:
         return info
 
     def score(self, q: FloatArray, joint: int, delta: float, T: FloatArray, info_so_far: FloatArray,
-              source: str = "") -> ScoredMotion:
-        """The candidate's D-optimal gain log det(I + I_c) - log det(I) (-inf when not in view)."""
-        info, in_view, area = self.predicted_information(q, joint, delta, T)
+              source: str = "", occlusion: bool = False) -> ScoredMotion:
+        """The candidate's D-optimal gain log det(I + I_c) - log det(I) (-inf when not in view).
+
+        Without ``occlusion`` the gain is an upper bound of the one with it (hiding observations
+        never adds information; the expected track count comes from the same projected area).
+        """
+        info, in_view, area = self.predicted_information(q, joint, delta, T, occlusion)
         if in_view < self.config.min_in_view:
-            return ScoredMotion(q, joint, delta, -np.inf, in_view, source)
+            return ScoredMotion(q, joint, delta, -np.inf, in_view, source, occlusion)
         info = info * self.expected_tracks(area)
         gain = np.linalg.slogdet(info_so_far + info)[1] - np.linalg.slogdet(info_so_far)[1]
-        return ScoredMotion(q, joint, delta, float(gain), in_view, source)
+        return ScoredMotion(q, joint, delta, float(gain), in_view, source, occlusion)
 
     # -- planning ------------------------------------------------------------------------------
     def plan(self, observation: dict[str, Any]) -> dict[str, Any]:
@@ -319,9 +377,24 @@ class InformedPlanner:
                     scored.append(sm)
             scored.sort(key=lambda m: -m.gain)
             self.last_candidates = scored
-            for m in scored[:c.n_validate]:
-                if not self.env.validate(m.q, m.joint, m.delta):
+            # best first: check validity; a valid candidate whose gain ignores occlusion is rescored
+            # with it and goes back into the queue, since its gain can only drop. Once the checks are
+            # spent, the best rescored candidate wins over the unchecked ones.
+            queue, checks = scored[:c.n_validate], 0
+            while queue:
+                m = queue.pop(0)
+                if m.occlusion:
                     return {"Q": m.q, "J": m.joint, "delta": np.array([m.delta])}
+                if self.env.validate(m.q, m.joint, m.delta):
+                    continue
+                if checks >= c.occlusion_checks:
+                    m = next((x for x in queue if x.occlusion), m)
+                    return {"Q": m.q, "J": m.joint, "delta": np.array([m.delta])}
+                checks += 1
+                exact = self.score(m.q, m.joint, m.delta, T, so_far, m.source, occlusion=True)
+                if np.isfinite(exact.gain):
+                    queue.append(exact)
+                    queue.sort(key=lambda x: -x.gain)
         raise InvalidInputError(f"no valid, visible motion in {c.max_rounds} rounds of "
                                 f"{c.n_random + c.n_ik} candidates")
 

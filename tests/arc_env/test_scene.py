@@ -102,6 +102,27 @@ def test_a_thumbnail_is_the_same_view_with_fewer_pixels(panda):
         panda.render(0)
 
 
+def test_depth_of_the_floor_matches_the_ray_plane_intersection(panda):
+    depth = panda.depth()
+    K = panda.intrinsics.K
+    T_base_camera = np.linalg.inv(panda.T_camera_base)
+    T_world_camera = panda.T_world_base @ T_base_camera
+    robot = panda.robot_mask()
+    checked = 0
+    for v in range(200, 360, 20):
+        for u in range(0, 640, 40):
+            ray = np.array([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], 1.0])  # OpenCV: centres at integers
+            origin, direction = T_world_camera[:3, 3], T_world_camera[:3, :3] @ ray
+            if robot[v, u] or direction[2] >= 0:
+                continue
+            expected = -origin[2] / direction[2]  # the floor is the world's z = 0 plane
+            # float32 depth; half a pixel off would be 2e-3 relative here
+            assert depth[v, u] == pytest.approx(expected, rel=1e-5), (u, v)
+            checked += 1
+    assert checked > 50
+    assert panda.depth(downscale=4).shape == (90, 160)
+
+
 def test_speckle_gives_the_tracker_corners_on_the_robot(panda):
     grey = cv2.cvtColor(panda.render(), cv2.COLOR_RGB2GRAY)
     mask = panda.robot_mask().astype(np.uint8)

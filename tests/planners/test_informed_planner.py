@@ -66,6 +66,32 @@ def test_motions_out_of_view_score_minus_infinity(env_above):
     assert scored.gain == -np.inf and scored.in_view < 0.7
 
 
+def test_occlusion_verdicts_match_the_full_resolution_depth(env_above):
+    planner = InformedPlanner(env_above, np.random.default_rng(0))
+    s = env_above.scene
+    body, local = s.surface_points(2)
+    s.set_swept(Q_TILTED, 2, 0.4)
+    uv, ok = s.project_points(body, local, T_ABOVE, min_depth=0.1, margin_px=2)
+    verdict = planner.visible_points(Q_TILTED, 2, 0.4, body, local, T_ABOVE, uv)[ok]
+    depth = s.depth()  # full resolution, the true camera
+    z = (s.points_base(body, local) @ T_ABOVE[:3, :3].T + T_ABOVE[:3, 3])[ok, 2]
+    col, row = np.round(uv[ok]).astype(int).T
+    truth = z <= depth[row, col] + 0.01
+    s.set_q(s.home)
+    # surface points all round the links: the far sides are hidden, the near sides seen
+    assert 0.2 < verdict.mean() < 0.8
+    assert np.mean(verdict == truth) > 0.9
+
+
+def test_occlusion_can_only_lower_the_gain(env_above):
+    planner = InformedPlanner(env_above, np.random.default_rng(0))
+    so_far = planner.information_so_far(T_ABOVE)
+    bound = planner.score(Q_TILTED, 2, 0.8, T_ABOVE, so_far)
+    exact = planner.score(Q_TILTED, 2, 0.8, T_ABOVE, so_far, occlusion=True)
+    assert exact.occlusion and not bound.occlusion
+    assert 0 < exact.gain < bound.gain
+
+
 def test_line_distance_matches_a_brute_force_search():
     rng = np.random.default_rng(3)
     for _ in range(5):
