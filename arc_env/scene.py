@@ -439,7 +439,9 @@ class Scene:
         return self._renderers[downscale]
 
     def _update(self, T_camera_base: FloatArray | None, downscale: int = 1) -> mujoco.Renderer:
-        r = self._renderer(downscale)
+        if int(downscale) != downscale or downscale < 1:
+            raise InvalidInputError(f"downscale must be a positive integer, got {downscale!r}")
+        r = self._renderer(int(downscale))
         if T_camera_base is None:
             r.update_scene(self.data, CAMERA_NAME, scene_option=self._scene_option)
         else:
@@ -462,9 +464,7 @@ class Scene:
         A ``downscale`` above 1 is a thumbnail of the same view (same field of view, fewer pixels),
         for cheap image tests; the tracker always gets full resolution.
         """
-        if int(downscale) != downscale or downscale < 1:
-            raise InvalidInputError(f"downscale must be a positive integer, got {downscale!r}")
-        r = self._update(None, int(downscale))
+        r = self._update(None, downscale)
         r.disable_segmentation_rendering()
         return r.render().copy()
 
@@ -474,9 +474,7 @@ class Scene:
         Seen by the true camera or one at ``T_camera_base`` (e.g. an estimate, to predict what it
         would see); the far clipping distance where nothing is hit.
         """
-        if int(downscale) != downscale or downscale < 1:
-            raise InvalidInputError(f"downscale must be a positive integer, got {downscale!r}")
-        r = self._update(T_camera_base, int(downscale))
+        r = self._update(T_camera_base, downscale)
         r.enable_depth_rendering()
         try:
             return r.render().copy()

@@ -172,6 +172,7 @@ class _Problem:
         self.cols = cols.ravel()  # CSR column indices: every row has the 6 pose entries and its point's 3
         self.indptr = np.arange(0, 9 * 2 * P + 1, 9)
         self.shape = (2 * P, 6 + 3 * tracks.n_tracks)
+        self.obs_pivot = tracks.pivot[tracks.track]  # (P, 3) m: each observation's d_b
 
     def pose(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         """R (3, 3) and t (3,) at parameters x."""
@@ -182,15 +183,8 @@ class _Problem:
         R, t = self.pose(x)
         q = x[6:].reshape(-1, 3)[tr.track]
         y = (q - t) @ R  # R^T (q - t): the base-frame point at delta = 0
-        p_base = np.matmul(tr.rot, (y - self._pivot)[:, :, None])[:, :, 0] + self._pivot
+        p_base = np.matmul(tr.rot, (y - self.obs_pivot)[:, :, None])[:, :, 0] + self.obs_pivot
         return p_base @ R.T + t, R, t, q
-
-    @property
-    def _pivot(self) -> FloatArray:
-        """(P, 3) each observation's d_b."""
-        if not hasattr(self, "_pivot_p"):
-            self._pivot_p = self.tracks.pivot[self.tracks.track]
-        return self._pivot_p
 
     def residuals(self, x: FloatArray) -> FloatArray:
         """(2P,) float64, px: reprojection errors."""
