@@ -26,6 +26,7 @@ A record (``dict``):
 
 from __future__ import annotations
 
+import argparse
 import json
 import multiprocessing
 import os
@@ -296,3 +297,30 @@ def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None
                 else:
                     os.environ[k] = v
     return {spec: records[spec] for spec in specs}
+
+
+def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
+    """The study scripts' ``--workers N`` and ``--store DIR`` (read back by :func:`run_from_arguments`)."""
+    parser.add_argument("--workers", type=int, default=1, help="episodes run in parallel processes (default 1)")
+    parser.add_argument("--store", type=Path, help="keep finished episodes here and reuse them (resumable runs, "
+                        "shared by bench_episode.py, compare_planners.py and reproduce_paper.py)")
+
+
+def run_from_arguments(specs: Iterable[EpisodeSpec], args: argparse.Namespace,
+                       on_record: Callable[[dict[str, Any], bool], None] | None = None
+                       ) -> dict[EpisodeSpec, dict[str, Any]]:
+    """:func:`run_episodes` with the store and workers that :func:`add_runner_arguments` parsed."""
+    return run_episodes(specs, EpisodeStore(args.store) if args.store else None, args.workers, on_record)
+
+
+def write_figures(path: Path, figures: dict[str, Any]) -> None:
+    """Write a study's ``--json`` document; infinite or NaN figures become null."""
+    def clean(x: Any) -> Any:
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, float):
+            return x if np.isfinite(x) else None
+        return x
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(clean(figures), indent=2))

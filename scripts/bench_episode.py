@@ -18,13 +18,19 @@ interrupted and resumed; ``--workers N`` runs N episodes at once (one renderer t
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
 import arc_env  # noqa: F401  (chooses the GL backend before MuJoCo loads)
-from arc_env.episodes import EpisodeSpec, EpisodeStore, commits_used, padded_curve, run_episodes
+from arc_env.episodes import (
+    EpisodeSpec,
+    add_runner_arguments,
+    commits_used,
+    padded_curve,
+    run_from_arguments,
+    write_figures,
+)
 
 CHECKPOINTS = (3, 10, 25)
 TARGET_25 = (0.001, 0.0015)  # rad, m: issue 3's target for tracked runs at 25 motions
@@ -58,9 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-oracle", action="store_true", help="skip the oracle runs")
     parser.add_argument("--quick", action="store_true", help="2 poses x 1 seed, 960x540, 10 motions (CI smoke)")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
-    parser.add_argument("--workers", type=int, default=1, help="episodes run in parallel processes (default 1)")
-    parser.add_argument("--store", type=Path, help="keep finished episodes here and reuse them (resumable runs; "
-                        "shared with compare_planners.py and reproduce_paper.py)")
+    add_runner_arguments(parser)
     args = parser.parse_args(argv)
     if args.quick:
         args.poses, args.seeds, args.motions, args.width, args.height = 2, 1, 10, 960, 540
@@ -82,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{sec['solver']:>6.1f}  {r['commit']}{' (stored)' * from_store}{'  ' + r['note'] if r['note'] else ''}",
               flush=True)
 
-    records = run_episodes(specs.values(), EpisodeStore(args.store) if args.store else None, args.workers, show)
+    records = run_from_arguments(specs.values(), args, show)
     results = {mode: [records[specs[mode, p, s]] for p in range(args.poses) for s in range(args.seeds)]
                for mode in modes}
     tracked = results["tracked"]
@@ -110,13 +114,7 @@ def main(argv: list[str] | None = None) -> int:
           f"solver {out['seconds_split']['solver']:.1f}); tracking + solver "
           f"{out['tracking_plus_solver_ms_per_frame']:.1f} ms per rendered frame")
     if args.json:
-        def clean(x):
-            if isinstance(x, dict):
-                return {k: clean(v) for k, v in x.items()}
-            return _finite_or_none(x) if isinstance(x, float) else x
-
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(clean(out), indent=2))
+        write_figures(args.json, out)
     return 0
 
 

@@ -22,7 +22,6 @@ interrupted and resumed; ``--workers N`` runs N episodes at once (one renderer t
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import cv2
@@ -31,7 +30,14 @@ from reproduce_paper import error_plot  # scripts/ is on sys.path when run as a 
 
 import arc_env  # noqa: F401  (chooses the GL backend before MuJoCo loads)
 from arc_env.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M
-from arc_env.episodes import EpisodeSpec, EpisodeStore, commits_used, padded_curve, run_episodes
+from arc_env.episodes import (
+    EpisodeSpec,
+    add_runner_arguments,
+    commits_used,
+    padded_curve,
+    run_from_arguments,
+    write_figures,
+)
 
 PLANNERS = ("random", "informed")
 
@@ -72,14 +78,6 @@ def plot(summary: dict, n_motions: int, path: Path) -> None:
         raise OSError(f"OpenCV could not write {path}")
 
 
-def _clean(x: object) -> object:
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, float):
-        return x if np.isfinite(x) else None
-    return x
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run the comparison; returns the exit code."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -91,9 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--plot", type=Path, default=Path("bench_out/compare_planners.png"),
                         help="PNG of median error vs motions (default bench_out/compare_planners.png)")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
-    parser.add_argument("--workers", type=int, default=1, help="episodes run in parallel processes (default 1)")
-    parser.add_argument("--store", type=Path, help="keep finished episodes here and reuse them (resumable runs; "
-                        "shared with bench_episode.py and reproduce_paper.py)")
+    add_runner_arguments(parser)
     args = parser.parse_args(argv)
     specs = {(name, pose, seed): EpisodeSpec(name, pose, seed, args.motions, args.width, args.height)
              for pose in range(args.poses) for seed in range(args.seeds) for name in PLANNERS}
@@ -113,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['in_collision']:>7} {r['seconds']['total']:>6.0f}  {r['commit']}{' (stored)' * from_store}"
               f"{'  ' + r['note'] if r['note'] else ''}", flush=True)
 
-    records = run_episodes(specs.values(), EpisodeStore(args.store) if args.store else None, args.workers, show)
+    records = run_from_arguments(specs.values(), args, show)
     runs = {name: [records[specs[name, p, s]] for p in range(args.poses) for s in range(args.seeds)]
             for name in PLANNERS}
     reached = {name: [motions_to_paper_accuracy(padded_curve(r, args.motions)) for r in rs]
@@ -143,8 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     plot(summary, args.motions, args.plot)
     print(f"plot: {args.plot}")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(_clean(summary), indent=2))
+        write_figures(args.json, summary)
     return 0
 
 

@@ -31,7 +31,6 @@ interrupted and resumed (and shares runs with ``bench_episode.py`` and ``compare
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import cv2
@@ -40,7 +39,15 @@ import numpy as np
 import arc_env  # noqa: F401  (chooses the GL backend before MuJoCo loads)
 from arc_env.demo import mask_iou
 from arc_env.env import ArcCalibEnv, EnvConfig, benchmark_camera_pose
-from arc_env.episodes import METHODS, EpisodeSpec, EpisodeStore, commits_used, padded_curve, run_episodes
+from arc_env.episodes import (
+    METHODS,
+    EpisodeSpec,
+    add_runner_arguments,
+    commits_used,
+    padded_curve,
+    run_from_arguments,
+    write_figures,
+)
 from arc_env.scene import SceneConfig
 
 CHECKPOINTS = (3, 10, 25)
@@ -227,9 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("bench_out/reproduce"), help="directory for PNGs and table")
     parser.add_argument("--quick", action="store_true", help="2 poses x 1 seed, 960x540, 10 motions, 5 IoU configs")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
-    parser.add_argument("--workers", type=int, default=1, help="episodes run in parallel processes (default 1)")
-    parser.add_argument("--store", type=Path, help="keep finished episodes here and reuse them (resumable runs; "
-                        "shared with bench_episode.py and compare_planners.py)")
+    add_runner_arguments(parser)
     args = parser.parse_args(argv)
     if args.quick:
         args.poses, args.seeds, args.motions, args.width, args.height, args.iou_configs = 2, 1, 10, 960, 540, 5
@@ -248,7 +253,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {spec['method']} pose {spec['pose']} seed {spec['seed']}: {r['seconds']['total']:.0f} s, "
               f"{r['commit']}{' (stored)' * from_store}", flush=True)
 
-    records = run_episodes(specs.values(), EpisodeStore(args.store) if args.store else None, args.workers, show)
+    records = run_from_arguments(specs.values(), args, show)
     print(f"{'method':>8} {'pose':>4} {'seed':>4} " + " ".join(f"{'@' + str(k):>19}" for k in checkpoints)
           + f" {'IoU':>6} {'sec':>6}  note", flush=True)
     runs: dict[str, list[dict]] = {m: [] for m in methods}
@@ -282,8 +287,7 @@ def main(argv: list[str] | None = None) -> int:
     (args.out / "results.md").write_text(table + "\n")
     print(f"wrote {args.out / 'errors.png'}, {args.out / 'iou.png'}, {args.out / 'results.md'}")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(json_figures(summary, iou_mean, args.motions), indent=2))
+        write_figures(args.json, json_figures(summary, iou_mean, args.motions))
         print(f"wrote {args.json}")
     return 0
 
