@@ -14,6 +14,7 @@ from solver.frames import perturb, pose_difference, pose_errors
 from solver.refinement import (
     RefinementConfig,
     _Problem,
+    _Whitened,
     build_track_set,
     pose_covariance,
     pose_information,
@@ -84,8 +85,8 @@ def _start_pose(T_true: np.ndarray, seed: int) -> np.ndarray:
     return perturb(T_true, xi)
 
 
-def _finite_difference_jacobian(problem: _Problem, x: np.ndarray) -> np.ndarray:
-    J = np.empty((problem.shape[0], x.size))
+def _finite_difference_jacobian(problem: _Problem | _Whitened, x: np.ndarray) -> np.ndarray:
+    J = np.empty((problem.residuals(x).size, x.size))
     for k in range(x.size):
         step = np.zeros_like(x)
         step[k] = FD_STEP
@@ -109,6 +110,31 @@ def test_jacobian_matches_finite_differences(omega_scale):
     J = J.toarray()
     J_fd = _finite_difference_jacobian(problem, x)
     np.testing.assert_allclose(J, J_fd, rtol=JACOBIAN_RTOL, atol=JACOBIAN_RTOL * np.abs(J).max())
+
+
+def test_whitened_jacobian_matches_finite_differences_and_whitens():
+    scene = _make_scene(5, n_motions=3, n_tracks=3, n_frames=10)
+    tracks = build_track_set(scene.motions, FOCAL)
+    rng = np.random.default_rng(6)
+    T0 = _start_pose(scene.T_true, 7)
+    x0 = np.concatenate([np.zeros(6), (_camera_points(scene) + rng.normal(0, 0.01, (len(scene.points), 3))).ravel()])
+    white = _Whitened(_Problem(tracks, T0), x0)
+    n = x0.size
+    assert np.array_equal(white.native(np.zeros(n)), x0)
+    z = rng.normal(0, 0.5, n)
+    # z -> x is affine: x(z) - x0 is the sum of x(e_k) - x0 over z's components
+    cols = np.stack([white.native(np.eye(n)[k]) - x0 for k in range(n)], axis=1)
+    np.testing.assert_allclose(white.native(z) - x0, cols @ z, rtol=1e-12, atol=1e-15)
+    J = white.jacobian(z).toarray()
+    J_fd = _finite_difference_jacobian(white, z)
+    np.testing.assert_allclose(J, J_fd, rtol=JACOBIAN_RTOL, atol=JACOBIAN_RTOL * np.abs(J).max())
+    # at z = 0 the normal matrix has identity blocks on the pose and on every track's point
+    N = white.jacobian(np.zeros(n)).toarray()
+    N = N.T @ N
+    np.testing.assert_allclose(N[:6, :6], np.eye(6), atol=1e-6)
+    for k in range(tracks.n_tracks):
+        b = slice(6 + 3 * k, 9 + 3 * k)
+        np.testing.assert_allclose(N[b, b], np.eye(3), atol=1e-6)
 
 
 def _camera_points(scene):
