@@ -237,7 +237,8 @@ class Calibrator:
                 else np.full((len(self._motions[k].tracks), 3), np.nan) for k in live])
             try:
                 refined = refine(tracks, start, cfg.refinement, points_init=warm)
-                std = np.sqrt(np.diag(refined.covariance))
+                with np.errstate(invalid="ignore"):  # a negative variance is caught just below
+                    std = np.sqrt(np.diag(refined.covariance))
                 if (not np.all(np.isfinite(std)) or np.any(std[:3] > cfg.max_std_rotation)
                         or np.any(std[3:] > cfg.max_std_translation)):
                     message = (f"the motions do not fix the pose: 1-sigma uncertainty "

@@ -8,7 +8,8 @@ to the normalized-coordinate error). The pose is perturbed as R = Exp(omega) R_h
 (``solver.frames``). Solved with scipy's ``least_squares`` (TRF, sparse analytic Jacobian, LSMR):
 first a redescending Cauchy loss, then tracks whose RMS error stays far above the noise are dropped
 and a plain least-squares pass yields the estimate and its covariance (Gauss-Newton, Schur
-complement over the points, scaled by the residual variance).
+complement over the points, scaled by the residual variance, enlarged where a track-clustered
+sandwich estimate is larger).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
+from scipy.linalg import eigh
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
@@ -225,7 +227,13 @@ class RefinementResult:
 
     Attributes:
         T_camera_base: (4, 4) float64: the refined pose.
-        covariance: (6, 6) float64: covariance of (omega rad, tau m) about it (``solver.frames``).
+        covariance: (6, 6) float64: covariance of (omega rad, tau m) about it (``solver.frames``):
+            the model's (pixel noise independent, ``pose_covariance``), enlarged along the
+            directions where the track-clustered sandwich (``clustered_pose_covariance``) is
+            larger. On synthetic episodes with 10% drifting or jumping tracks the model's alone
+            holds the truth in its 95% region in 29% / 50% of runs at 5 / 10 motions, this in
+            86% / 90% (the drifts that survive outlier removal bias the pose; their residuals are
+            correlated within the track).
         points_base: (T, 3) float64, m: each track's point at its motion's start configuration.
         track_inliers: (T,) bool: tracks kept after the robust pass.
         rms_px: RMS reprojection error of the kept tracks, px.
@@ -352,6 +360,42 @@ def pose_covariance(problem: _Problem, x: FloatArray, sigma2: float) -> FloatArr
     return sigma2 * np.linalg.inv(_schur_information(problem, x))
 
 
+def clustered_pose_covariance(problem: _Problem, x: FloatArray) -> FloatArray:
+    """Track-clustered sandwich covariance (6, 6) of the pose at the least-squares optimum x.
+
+    S^-1 (sum_t g_t g_t^T) S^-1 with S the Schur information and g_t track t's score with its
+    point marginalized, (J_p,t - J_x,t V_t^-1 W_t^T)^T r_t: errors may be correlated within a
+    track (a tracker drifting off its feature) but not across tracks. Scaled by
+    T / (T - 1) * m / (m - n) for the clusters and the fitted parameters (m residuals, n unknowns).
+    """
+    blocks = problem.jacobian_blocks(x)
+    Jp, Jx = blocks[:, :, :6], blocks[:, :, 6:]
+    r = problem.residuals(x).reshape(-1, 2)
+    tracks = problem.tracks
+    W = _per_track_sum(np.einsum("pki,pkj->pij", Jp, Jx), tracks)
+    V = _per_track_sum(np.einsum("pki,pkj->pij", Jx, Jx), tracks)
+    g = (_per_track_sum(np.einsum("pki,pk->pi", Jp, r), tracks)
+         - np.einsum("tij,tjk,tk->ti", W, np.linalg.inv(V + 1e-12 * np.eye(3)),
+                     _per_track_sum(np.einsum("pki,pk->pi", Jx, r), tracks)))
+    S_inv = np.linalg.inv(_schur_information(problem, x))
+    T, m, n = tracks.n_tracks, r.size, x.size
+    scale = T / max(T - 1, 1) * m / max(m - n, 1)
+    C = scale * S_inv @ (g.T @ g) @ S_inv
+    return 0.5 * (C + C.T)
+
+
+def conservative_covariance(model: FloatArray, clustered: FloatArray) -> FloatArray:
+    """The smallest covariance (6, 6) at least as large as both, in the model's eigen-directions.
+
+    With C v = l M v (generalized eigenvectors, V^T M V = I), returns M V diag(max(l, 1)) V^T M:
+    ``model`` where the clustered estimate is smaller, the clustered one where it is larger.
+    """
+    lam, V = eigh(clustered, model)
+    MV = model @ V
+    out = MV @ np.diag(np.maximum(lam, 1.0)) @ MV.T
+    return 0.5 * (out + out.T)
+
+
 def pose_information(tracks: TrackSet, T_camera_base: FloatArray) -> FloatArray:
     """Fisher information (6, 6) about (omega, tau) that noise-free tracks carry, per px^-2 of noise.
 
@@ -413,7 +457,7 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     T, pts2, problem, x, sol = _solve(sub2, T, pts[good], "linear", 1.0, config.max_nfev, 1e-8)
     m, n = sol.fun.size, sol.x.size
     sigma2 = float(np.sum(sol.fun**2) / max(m - n, 1))
-    cov = pose_covariance(problem, x, sigma2)
+    cov = conservative_covariance(pose_covariance(problem, x, sigma2), clustered_pose_covariance(problem, x))
     inliers = np.zeros(tracks.n_tracks, dtype=bool)
     kept_idx = np.flatnonzero(keep)[good]
     inliers[kept_idx] = True

@@ -16,6 +16,8 @@ from solver.refinement import (
     _Problem,
     _Whitened,
     build_track_set,
+    clustered_pose_covariance,
+    conservative_covariance,
     pose_covariance,
     pose_information,
     refine,
@@ -246,6 +248,39 @@ def test_pose_covariance_is_the_pose_block_of_the_full_inverse():
     sigma2 = 0.25
     full = sigma2 * np.linalg.inv((J.T @ J).toarray())
     np.testing.assert_allclose(pose_covariance(problem, x, sigma2), full[:6, :6], rtol=1e-6)
+
+
+def test_clustered_covariance_is_the_pose_block_of_the_dense_sandwich():
+    # Independent construction: the full dense Jacobian, H = J^T J, and the sandwich
+    # H^-1 (sum over tracks of J_t^T r_t r_t^T J_t) H^-1 over all unknowns; its pose block.
+    scene = _make_scene(17, n_motions=3, n_tracks=4, n_frames=10)
+    tracks = build_track_set(scene.motions, FOCAL)
+    problem = _Problem(tracks, scene.T_true)
+    rng = np.random.default_rng(3)
+    points = _camera_points(scene) + rng.normal(0, 2e-3, (len(scene.points), 3))
+    x = np.concatenate([rng.normal(0, 1e-3, 6), points.ravel()])
+    J = problem.jacobian(x).toarray()
+    r = problem.residuals(x)
+    H_inv = np.linalg.inv(J.T @ J)
+    rows = np.repeat(tracks.track, 2)
+    meat = sum(np.outer(J[rows == t].T @ r[rows == t], J[rows == t].T @ r[rows == t]) for t in range(tracks.n_tracks))
+    T, m, n = tracks.n_tracks, r.size, x.size
+    expected = (H_inv @ meat @ H_inv)[:6, :6] * T / (T - 1) * m / (m - n)
+    # at a non-optimal x the point scores are not zero: the marginalized score keeps their effect
+    np.testing.assert_allclose(clustered_pose_covariance(problem, x), expected, rtol=1e-6,
+                               atol=1e-9 * np.abs(expected).max())
+
+
+def test_conservative_covariance_is_the_larger_in_every_direction():
+    rng = np.random.default_rng(4)
+    A, B = rng.normal(size=(6, 6)), rng.normal(size=(6, 6))
+    model, other = A @ A.T + np.eye(6), B @ B.T + 0.1 * np.eye(6)
+    out = conservative_covariance(model, other)
+    np.testing.assert_allclose(out, out.T)
+    assert np.linalg.eigvalsh(out - model).min() > -1e-9 * np.abs(out).max()
+    assert np.linalg.eigvalsh(out - other).min() > -1e-9 * np.abs(out).max()
+    np.testing.assert_allclose(conservative_covariance(model, 0.5 * model), model, rtol=1e-9)
+    np.testing.assert_allclose(conservative_covariance(model, 3.0 * model), 3.0 * model, rtol=1e-9)
 
 
 def test_pose_information_is_the_inverse_pose_block_from_finite_differences():
