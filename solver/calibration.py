@@ -210,24 +210,32 @@ class ConsensusResult:
     """Outcome of the robust linear calibration.
 
     Attributes:
-        T_camera_base: (4, 4) float64: the pose refitted on the inliers.
-        inliers: (N,) bool: motions consistent with it.
+        T_camera_base: (4, 4) float64: the pose refitted on the motions in ``used``.
+        inliers: (N,) bool: motions consistent with it (within the pruning bounds).
         eps_a: (N,) float64, rad: each motion's axis error against it.
         eps_d: (N,) float64, m: each motion's plane distance against it.
+        used: (N,) bool: the motions of the final fit: the inliers within the tighter fit bounds
+            when enough of them fix the pose, else all inliers.
     """
 
     T_camera_base: FloatArray
     inliers: NDArray[np.bool_]
     eps_a: FloatArray
     eps_d: FloatArray
+    used: NDArray[np.bool_]
 
 
 def solve_consensus(correspondences: Sequence[AxisCorrespondence], max_eps_a: float,
-                    max_eps_d: float, rng: np.random.Generator, iterations: int = 100) -> ConsensusResult:
+                    max_eps_d: float, rng: np.random.Generator, iterations: int = 100,
+                    fit_eps: tuple[float, float] | None = None) -> ConsensusResult:
     """Linear calibration robust to wrong motions: RANSAC over minimal sets of three motions.
 
     Each sample's pose scores the motions by the paper's eps_a and eps_d (§V-C-2); the largest
     consistent set is refitted, and inliers are re-selected against the refit until stable.
+    With ``fit_eps`` = (rad, m), the pose is then refitted on the inliers within those tighter
+    bounds, re-selected until stable, as long as at least four of them fix the pose: the pruning
+    bounds keep a motion from being rejected, but motions with axis errors of several degrees
+    still pull the least-squares solution (paper §V-A weighs every row alike).
 
     Raises:
         InsufficientMotionsError: fewer than three motions, or fewer than three consistent ones.
@@ -275,4 +283,27 @@ def solve_consensus(correspondences: Sequence[AxisCorrespondence], max_eps_a: fl
             break
         inliers = new
     check_observable([correspondences[i] for i in np.flatnonzero(inliers)], T)
-    return ConsensusResult(T, inliers, ea, ed)
+    used = inliers
+    if fit_eps is not None:
+        T, used = _tighten(correspondences, T, inliers, fit_eps)
+        _, ea, ed = score(T)
+    return ConsensusResult(T, inliers, ea, ed, used)
+
+
+def _tighten(correspondences: Sequence[AxisCorrespondence], T: FloatArray, inliers: NDArray[np.bool_],
+             fit_eps: tuple[float, float]) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Refit T on the inliers within ``fit_eps`` until the set is stable; keeps T when it cannot."""
+    used = inliers
+    for _ in range(5):
+        errs = np.array([consistency_errors(c, T) for c in correspondences])
+        new = inliers & (errs[:, 0] <= fit_eps[0]) & (errs[:, 1] <= fit_eps[1])
+        if new.sum() < MIN_MOTIONS_RELAXED or np.array_equal(new, used):
+            break
+        subset = [correspondences[i] for i in np.flatnonzero(new)]
+        try:
+            T_new = solve_linear(subset)
+            check_observable(subset, T_new)
+        except UnobservablePoseError:
+            break
+        T, used = T_new, new
+    return T, used

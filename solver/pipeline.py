@@ -47,6 +47,11 @@ class CalibratorConfig:
         refine: run the bundle adjustment (off: the paper's linear method only).
         max_eps_a: rad; stage-two pruning threshold on the axis error (Eq. 23).
         max_eps_d: m; stage-two pruning threshold on the plane distance (Eq. 24).
+        fit_eps_a: rad; the linear pose is refitted on the motions within this axis error and
+            ``fit_eps_d`` (``solve_consensus``'s ``fit_eps``); None fits all unpruned motions.
+            On scripts/bench_solver.py's synthetic episodes the linear stage at 25 motions goes
+            from 5.6 mrad / 5.7 mm (all unpruned) to 3.9 mrad / 4.3 mm (20 episodes).
+        fit_eps_d: m; see ``fit_eps_a``.
         max_tracks_per_motion: tracks beyond this are subsampled for the bundle adjustment.
         max_frames_per_track: frames beyond this are subsampled evenly for the bundle adjustment.
         max_std_rotation: rad; a refined pose whose 1-sigma rotation uncertainty exceeds this is
@@ -62,6 +67,8 @@ class CalibratorConfig:
     refine: bool = True
     max_eps_a: float = 0.1
     max_eps_d: float = 0.05
+    fit_eps_a: float | None = 0.02
+    fit_eps_d: float = 0.005
     max_tracks_per_motion: int = 60
     max_frames_per_track: int = 30
     max_std_rotation: float = 0.05
@@ -217,7 +224,8 @@ class Calibrator:
         if len(with_axis) >= 3:
             cors = [self._correspondence(k) for k in with_axis]
             try:
-                linear = solve_consensus(cors, cfg.max_eps_a, cfg.max_eps_d, self._rng)
+                linear = solve_consensus(cors, cfg.max_eps_a, cfg.max_eps_d, self._rng,
+                                         fit_eps=None if cfg.fit_eps_a is None else (cfg.fit_eps_a, cfg.fit_eps_d))
             except (InsufficientMotionsError, UnobservablePoseError) as exc:
                 message = str(exc)
         else:
@@ -305,7 +313,7 @@ class Calibrator:
             r.linear = False
             if linear is not None and k in with_axis:
                 i = with_axis.index(k)
-                r.linear = bool(linear.inliers[i])
+                r.linear = bool(linear.used[i])
                 r.eps_a, r.eps_d = float(linear.eps_a[i]), float(linear.eps_d[i])
             if refined is not None:
                 r.n_inlier_tracks = int(inlier_tracks[slot])
@@ -314,7 +322,7 @@ class Calibrator:
                     f"only {r.n_inlier_tracks} of {len(self._motions[k].tracks)} tracks agree with "
                     f"the refined pose (need {min_tracks})")
             elif linear is not None:
-                r.accepted = r.linear
+                r.accepted = bool(linear.inliers[i])
                 r.reason = "" if r.accepted else (
                     r.stage_one or f"inconsistent with the estimate: eps_a = {r.eps_a:.3g} rad, "
                     f"eps_d = {r.eps_d:.3g} m (limits {self.config.max_eps_a}, {self.config.max_eps_d})")

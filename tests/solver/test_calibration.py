@@ -137,6 +137,34 @@ def test_solve_consensus_rejects_corrupted_motions(T_true, rng):
     assert np.max(np.abs(solve_linear(motions) - T_true)) > 1e3 * POSE_TOL
 
 
+def _tilt(c: AxisCorrespondence, angle: float, rng: np.random.Generator) -> AxisCorrespondence:
+    """The camera axis turned by ``angle`` rad about a random perpendicular (plane kept through it)."""
+    axis_cam = Rotation.from_rotvec(angle * unit(np.cross(c.axis_cam, random_unit(rng)))).apply(c.axis_cam)
+    normal = unit(np.cross(np.cross(c.plane_normal, c.axis_cam), axis_cam))
+    return AxisCorrespondence(c.axis_base, c.point_base, axis_cam, normal)
+
+
+def test_solve_consensus_fits_on_motions_within_the_tighter_bounds(T_true, rng):
+    # Three motions' axes off by 0.03 rad: inside the pruning bound 0.1, outside the fit bound 0.01
+    motions = _random_correspondences(T_true, rng, 10)
+    for k in (1, 4, 8):
+        motions[k] = _tilt(motions[k], 0.03, rng)
+    assert all(abs(consistency_errors(motions[k], T_true)[0] - 0.03) < 1e-9 for k in (1, 4, 8))
+    loose = solve_consensus(motions, 0.1, 0.05, np.random.default_rng(0))
+    tight = solve_consensus(motions, 0.1, 0.05, np.random.default_rng(0), fit_eps=(0.01, 0.05))
+    assert loose.inliers.all() and tight.inliers.all() and loose.used.all()
+    expected = np.ones(10, dtype=bool)
+    expected[[1, 4, 8]] = False
+    np.testing.assert_array_equal(tight.used, expected)
+    _assert_pose_close(tight.T_camera_base, T_true)
+    assert np.max(np.abs(loose.T_camera_base - T_true)) > 1e-4  # the tilted axes pull the plain fit
+    # too few within the fit bounds (three of five): the fit on all inliers stands
+    few = solve_consensus(motions[:5], 0.1, 0.05, np.random.default_rng(0), fit_eps=(0.01, 0.05))
+    plain = solve_consensus(motions[:5], 0.1, 0.05, np.random.default_rng(0))
+    np.testing.assert_array_equal(few.used, np.ones(5, dtype=bool))
+    _assert_pose_close(few.T_camera_base, plain.T_camera_base)
+
+
 @pytest.mark.parametrize("n", [0, 1, 2])
 def test_fewer_than_three_motions(T_true, rng, n):
     motions = _random_correspondences(T_true, rng, n)
