@@ -110,7 +110,8 @@ class CalibrationState:
     """The calibration after an update.
 
     Attributes:
-        T_camera_base: (4, 4) float64 or None: the best estimate (refined, else linear).
+        T_camera_base: (4, 4) float64 or None: the best estimate: refined; linear only with the
+            refinement off (with it on, a linear pose that the refinement fails on is withheld).
         stage: which stage produced it.
         T_linear: (4, 4) or None: the linear estimate.
         covariance: (6, 6) or None: covariance of (omega rad, tau m) from the refinement.
@@ -268,10 +269,15 @@ class Calibrator:
         T: FloatArray | None
         if refined is not None:
             T, stage = refined.T_camera_base, "refined"
-        elif linear is not None:
+        elif linear is not None and not cfg.refine:
             T, stage = linear.T_camera_base, "linear"
         else:
+            # With the bundle adjustment on, a linear pose it cannot confirm is not reported: from
+            # a few motions the consensus can settle on a wrong branch (seen: 2.2 rad off from four
+            # motions, which the tracks then did not fit). T_linear keeps it for diagnosis.
             T, stage = None, "none"
+            if linear is not None:
+                message = f"the linear estimate is not confirmed by the bundle adjustment: {message}"
         if T is not None:
             self._monitor.push(T)
         cov = refined.covariance if refined is not None else None
@@ -322,7 +328,7 @@ class Calibrator:
                     f"only {r.n_inlier_tracks} of {len(self._motions[k].tracks)} tracks agree with "
                     f"the refined pose (need {min_tracks})")
             elif linear is not None:
-                r.accepted = bool(linear.inliers[i])
+                r.accepted = k in with_axis and bool(linear.inliers[with_axis.index(k)])
                 r.reason = "" if r.accepted else (
                     r.stage_one or f"inconsistent with the estimate: eps_a = {r.eps_a:.3g} rad, "
                     f"eps_d = {r.eps_d:.3g} m (limits {self.config.max_eps_a}, {self.config.max_eps_d})")

@@ -10,6 +10,7 @@ from solver import (
     PANDA,
     CalibrationState,
     Calibrator,
+    CalibratorConfig,
     CameraIntrinsics,
     ConvergenceConfig,
     ConvergenceMonitor,
@@ -83,6 +84,26 @@ def test_too_few_motions_give_no_pose():
     cal, _ = _episode(4, 2, SyntheticConfig(tracks_per_motion=15))
     assert cal.state.T_camera_base is None and cal.state.stage == "none"
     assert "needs 3" in cal.state.message and not cal.state.converged
+
+
+def test_a_linear_pose_the_refinement_rejects_is_withheld():
+    rng = np.random.default_rng(2)  # the noisy episode's scene and motions
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1,
+                                                        tracks_per_motion=30), rng)
+    # no pose can meet a 1-nanometre bound, so the refinement rejects every one
+    strict = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(max_std_translation=1e-9))
+    linear_only = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(refine=False))
+    for _ in range(12):
+        obs = scene.random_motion(rng).observation
+        strict.add_motion(obs)
+        linear_only.add_motion(obs)
+    assert strict.state.T_linear is not None
+    assert strict.state.T_camera_base is None and strict.state.stage == "none" and not strict.state.converged
+    assert "not confirmed by the bundle adjustment" in strict.state.message
+    assert "do not fix the pose" in strict.state.message
+    assert linear_only.state.stage == "linear"
+    np.testing.assert_array_equal(linear_only.state.T_camera_base, linear_only.state.T_linear)
 
 
 def test_shoulder_joints_alone_never_give_a_pose():
