@@ -205,6 +205,12 @@ def check_observable(correspondences: Sequence[AxisCorrespondence], T_camera_bas
         )
 
 
+def _errors(correspondences: Sequence[AxisCorrespondence], T_camera_base: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """eps_a (N,) rad and eps_d (N,) m of every motion against a pose (``consistency_errors``)."""
+    errs = np.array([consistency_errors(c, T_camera_base) for c in correspondences])
+    return errs[:, 0], errs[:, 1]
+
+
 @dataclass(frozen=True)
 class ConsensusResult:
     """Outcome of the robust linear calibration.
@@ -248,8 +254,8 @@ def solve_consensus(correspondences: Sequence[AxisCorrespondence], max_eps_a: fl
         )
 
     def score(T: FloatArray) -> tuple[NDArray[np.bool_], FloatArray, FloatArray]:
-        errs = np.array([consistency_errors(c, T) for c in correspondences])
-        return (errs[:, 0] <= max_eps_a) & (errs[:, 1] <= max_eps_d), errs[:, 0], errs[:, 1]
+        ea, ed = _errors(correspondences, T)
+        return (ea <= max_eps_a) & (ed <= max_eps_d), ea, ed
 
     best: NDArray[np.bool_] | None = None
     best_cost = np.inf
@@ -295,8 +301,8 @@ def _tighten(correspondences: Sequence[AxisCorrespondence], T: FloatArray, inlie
     """Refit T on the inliers within ``fit_eps`` until the set is stable; keeps T when it cannot."""
     used = inliers
     for _ in range(5):
-        errs = np.array([consistency_errors(c, T) for c in correspondences])
-        new = inliers & (errs[:, 0] <= fit_eps[0]) & (errs[:, 1] <= fit_eps[1])
+        ea, ed = _errors(correspondences, T)
+        new = inliers & (ea <= fit_eps[0]) & (ed <= fit_eps[1])
         if new.sum() < MIN_MOTIONS_RELAXED or np.array_equal(new, used):
             break
         subset = [correspondences[i] for i in np.flatnonzero(new)]

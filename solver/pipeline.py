@@ -316,10 +316,9 @@ class Calibrator:
         min_tracks = self.config.motion.min_tracks
         for slot, k in enumerate(live):
             r = self.reports[k]
-            r.linear = False
-            if linear is not None and k in with_axis:
-                i = with_axis.index(k)
-                r.linear = bool(linear.used[i])
+            i = with_axis.index(k) if linear is not None and k in with_axis else None
+            r.linear = i is not None and bool(linear.used[i])
+            if i is not None:
                 r.eps_a, r.eps_d = float(linear.eps_a[i]), float(linear.eps_d[i])
             if refined is not None:
                 r.n_inlier_tracks = int(inlier_tracks[slot])
@@ -328,7 +327,7 @@ class Calibrator:
                     f"only {r.n_inlier_tracks} of {len(self._motions[k].tracks)} tracks agree with "
                     f"the refined pose (need {min_tracks})")
             elif linear is not None:
-                r.accepted = k in with_axis and bool(linear.inliers[with_axis.index(k)])
+                r.accepted = i is not None and bool(linear.inliers[i])
                 r.reason = "" if r.accepted else (
                     r.stage_one or f"inconsistent with the estimate: eps_a = {r.eps_a:.3g} rad, "
                     f"eps_d = {r.eps_d:.3g} m (limits {self.config.max_eps_a}, {self.config.max_eps_d})")

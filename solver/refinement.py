@@ -266,6 +266,7 @@ class _Whitened:
         self.Ap = _inverse_cholesky_t(np.einsum("pki,pkj->ij", Jp, Jp))
         self.Aq = _inverse_cholesky_t(_per_track_sum(np.einsum("pki,pkj->pij", Jx, Jx), problem.tracks))
         self.Aq_obs = self.Aq[problem.tracks.track]  # (P, 3, 3)
+        self._blocks_x0: FloatArray | None = blocks  # TRF's first Jacobian is at z = 0: x0's blocks
 
     def native(self, z: FloatArray) -> FloatArray:
         """(6 + 3T,) the problem's parameters x at whitened z."""
@@ -279,7 +280,10 @@ class _Whitened:
     def jacobian(self, z: FloatArray) -> sp.csr_matrix:
         """(2P, 6 + 3T) sparse Jacobian of ``residuals`` by z."""
         p = self.problem
-        blocks = p.jacobian_blocks(self.native(z))
+        if self._blocks_x0 is not None and not np.any(z):
+            blocks, self._blocks_x0 = self._blocks_x0, None
+        else:
+            blocks = p.jacobian_blocks(self.native(z))
         P = blocks.shape[0]
         blocks[:, :, :6] = (blocks[:, :, :6].reshape(2 * P, 6) @ self.Ap).reshape(P, 2, 6)
         blocks[:, :, 6:] = np.matmul(blocks[:, :, 6:], self.Aq_obs)
@@ -335,18 +339,23 @@ def _solve(tracks: TrackSet, T0: FloatArray, points: FloatArray, loss: str, f_sc
     return perturb(T0, x[:6]), (x[6:].reshape(-1, 3) - t) @ R, problem, x, sol
 
 
-def _schur_information(problem: _Problem, x: FloatArray) -> FloatArray:
-    """U - W V^-1 W^T (6, 6): the pose block of J^T J at x with every track's point marginalized out.
+def _schur_parts(problem: _Problem, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The Jacobian's dense blocks (P, 2, 9), W (T, 6, 3), V^-1 (T, 3, 3) and S = U - W V^-1 W^T (6, 6) at x.
 
-    Built track by track from the Jacobian's dense blocks (each observation touches the pose and
-    its own point only), px^2 per (rad or m)^2.
+    Built track by track (each observation touches the pose and its own point only); S is the pose
+    block of J^T J with every track's point marginalized out, px^2 per (rad or m)^2.
     """
     blocks = problem.jacobian_blocks(x)
     Jp, Jx = blocks[:, :, :6], blocks[:, :, 6:]
     U = np.einsum("pki,pkj->ij", Jp, Jp)
     W = _per_track_sum(np.einsum("pki,pkj->pij", Jp, Jx), problem.tracks)
-    V = _per_track_sum(np.einsum("pki,pkj->pij", Jx, Jx), problem.tracks)
-    return U - np.einsum("tij,tjk,tlk->il", W, np.linalg.inv(V + 1e-12 * np.eye(3)), W)
+    V_inv = np.linalg.inv(_per_track_sum(np.einsum("pki,pkj->pij", Jx, Jx), problem.tracks) + 1e-12 * np.eye(3))
+    return blocks, W, V_inv, U - np.einsum("tij,tjk,tlk->il", W, V_inv, W)
+
+
+def _schur_information(problem: _Problem, x: FloatArray) -> FloatArray:
+    """U - W V^-1 W^T (6, 6): the pose block of J^T J at x with every track's point marginalized out."""
+    return _schur_parts(problem, x)[3]
 
 
 def pose_covariance(problem: _Problem, x: FloatArray, sigma2: float) -> FloatArray:
@@ -368,20 +377,22 @@ def clustered_pose_covariance(problem: _Problem, x: FloatArray) -> FloatArray:
     track (a tracker drifting off its feature) but not across tracks. Scaled by
     T / (T - 1) * m / (m - n) for the clusters and the fitted parameters (m residuals, n unknowns).
     """
-    blocks = problem.jacobian_blocks(x)
+    return _pose_covariances(problem, x, 1.0)[1]
+
+
+def _pose_covariances(problem: _Problem, x: FloatArray, sigma2: float) -> tuple[FloatArray, FloatArray]:
+    """``pose_covariance`` and ``clustered_pose_covariance`` at x from one evaluation of the blocks."""
+    blocks, W, V_inv, S = _schur_parts(problem, x)
     Jp, Jx = blocks[:, :, :6], blocks[:, :, 6:]
     r = problem.residuals(x).reshape(-1, 2)
     tracks = problem.tracks
-    W = _per_track_sum(np.einsum("pki,pkj->pij", Jp, Jx), tracks)
-    V = _per_track_sum(np.einsum("pki,pkj->pij", Jx, Jx), tracks)
     g = (_per_track_sum(np.einsum("pki,pk->pi", Jp, r), tracks)
-         - np.einsum("tij,tjk,tk->ti", W, np.linalg.inv(V + 1e-12 * np.eye(3)),
-                     _per_track_sum(np.einsum("pki,pk->pi", Jx, r), tracks)))
-    S_inv = np.linalg.inv(_schur_information(problem, x))
+         - np.einsum("tij,tjk,tk->ti", W, V_inv, _per_track_sum(np.einsum("pki,pk->pi", Jx, r), tracks)))
+    S_inv = np.linalg.inv(S)
     T, m, n = tracks.n_tracks, r.size, x.size
     scale = T / max(T - 1, 1) * m / max(m - n, 1)
     C = scale * S_inv @ (g.T @ g) @ S_inv
-    return 0.5 * (C + C.T)
+    return sigma2 * S_inv, 0.5 * (C + C.T)
 
 
 def conservative_covariance(model: FloatArray, clustered: FloatArray) -> FloatArray:
@@ -457,7 +468,7 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     T, pts2, problem, x, sol = _solve(sub2, T, pts[good], "linear", 1.0, config.max_nfev, 1e-8)
     m, n = sol.fun.size, sol.x.size
     sigma2 = float(np.sum(sol.fun**2) / max(m - n, 1))
-    cov = conservative_covariance(pose_covariance(problem, x, sigma2), clustered_pose_covariance(problem, x))
+    cov = conservative_covariance(*_pose_covariances(problem, x, sigma2))
     inliers = np.zeros(tracks.n_tracks, dtype=bool)
     kept_idx = np.flatnonzero(keep)[good]
     inliers[kept_idx] = True
