@@ -32,6 +32,7 @@ import numpy as np
 
 from arc_env.exports import DEFAULT_CAMERA_FRAME, ParentChild, export_paths, export_texts, write_files_atomic
 from arc_env.overlay import RobotProjector, draw_overlay
+from arc_env.progress import Progress
 from arc_env.recording import Recording, read_recording
 from arc_env.tracking import TrackerConfig, track_keypoints
 from solver.errors import ArcCalibError, InvalidInputError
@@ -120,7 +121,8 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
     started = time.perf_counter()
     n = len(recording.motions)
     updated = False
-    for i, m in enumerate(recording.motions):
+    bar = Progress(max(n, 1), "motions", enabled=progress)
+    for m in recording.motions:
         diag = MotionDiagnostic(m.name, names[m.joint] if m.joint is not None else None, m.n_frames)
         diagnostics.append(diag)
         t0 = time.perf_counter()
@@ -150,12 +152,11 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
             seconds["tracking"] += t2 - t1
             seconds["solver"] += time.perf_counter() - t2
         diag.seconds = time.perf_counter() - t0
-        if progress:
-            s = calibrator.state
-            est = f"{s.stage} estimate, {s.n_accepted} accepted" if s.T_camera_base is not None else "no estimate yet"
-            what = diag.reason[:60] if diag.reason and not diag.tracks else f"{diag.tracks} tracks"
-            print(f"[{i + 1}/{n}] motion {m.name} joint {diag.joint or '-'}: {m.n_frames} frames, {what}; "
-                  f"{est}; {time.perf_counter() - started:.0f} s", file=sys.stderr, flush=True)
+        s = calibrator.state
+        est = f"{s.stage} estimate, {s.n_accepted} accepted" if s.T_camera_base is not None else "no estimate yet"
+        what = diag.reason[:60] if diag.reason and not diag.tracks else f"{diag.tracks} tracks"
+        bar.step(f"motion {m.name} joint {diag.joint or '-'}: {m.n_frames} frames, {what}; {est}")
+    bar.close()
     if calibrator.reports and not updated:  # the last motion added did not update (or failed)
         t0 = time.perf_counter()
         calibrator.update()

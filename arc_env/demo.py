@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from arc_env.env import ArcCalibEnv, EnvConfig
+from arc_env.progress import Progress
 from arc_env.scene import RobotSource, SceneConfig
 from planners.informed_planner import InformedPlanner
 from planners.random_planner import RandomPlanner
@@ -40,18 +41,6 @@ def overlay_image(frame: NDArray[np.uint8], mask_estimate: NDArray[np.bool_],
     return tint
 
 
-def _progress(done: int, total: int, started: float) -> None:
-    if not sys.stderr.isatty():
-        return
-    width = 30
-    filled = int(width * done / total)
-    elapsed = time.perf_counter() - started
-    sys.stderr.write(f"\r[{'#' * filled}{'.' * (width - filled)}] {done}/{total} motions, {elapsed:.0f} s")
-    sys.stderr.flush()
-    if done == total:
-        sys.stderr.write("\n")
-
-
 def run_demo(args: argparse.Namespace) -> int:
     """Run the episode described by the parsed ``arc-calib demo`` arguments; returns the exit code."""
     if args.robot and not args.base_body:
@@ -77,16 +66,20 @@ def _episode(env: ArcCalibEnv, args: argparse.Namespace) -> int:
     print(f"{'#':>3} {'joint':>5} {'delta':>6} {'frames':>6} {'tracks':>6} {'status':>9} {'stage':>8} "
           f"{'rot err':>9} {'trans err':>10} {'sec':>5}  note")
     started = time.perf_counter()
+    # the table's rows are the log; the bar only adds to a terminal
+    bar = Progress(args.motions, "motions", enabled=sys.stderr.isatty())
     seconds = {"planning": 0.0, "transit": 0.0, "render": 0.0, "tracking": 0.0, "solver": 0.0}
     for i in range(args.motions):
         t0 = time.perf_counter()
         try:
             action = planner.plan(obs)
         except ArcCalibError as exc:
+            bar.clear()
             print(f"arc-calib demo: the planner found no motion: {exc}", file=sys.stderr)
             break
         seconds["planning"] += time.perf_counter() - t0
         obs, reward, terminated, truncated, info = env.step(action)
+        bar.clear()
         if info["refused"]:  # the planner checks validity, so this is a bug if it happens
             print(f"{i + 1:>3} refused: {info['refused']}")
             continue
@@ -101,9 +94,10 @@ def _episode(env: ArcCalibEnv, args: argparse.Namespace) -> int:
               f"{m['n_tracks']:>6} {'accepted' if m['accepted'] else 'rejected':>9} {info['stage']:>8} "
               f"{rot:>9.2e} {trans * 1e3:>7.2f} mm {time.perf_counter() - t0:>5.1f}  {note[:60]}"
               + ("  [converged]" if obs["converged"] else ""))
-        _progress(i + 1, args.motions, started)
+        bar.step(f"{info['stage']} estimate" + (", converged" if obs["converged"] else ""))
         if (terminated and args.stop_when_converged) or truncated:
             break
+    bar.close()
     total = time.perf_counter() - started
     cal = env.calibrator
     s = cal.state

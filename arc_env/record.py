@@ -13,7 +13,6 @@ resampling every frame through the distortion (``arc_env.recording.Distorter``).
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from arc_env.env import ArcCalibEnv, EnvConfig
+from arc_env.progress import Progress
 from arc_env.recording import Distorter, RecordingWriter, parse_dist, write_json_atomic
 from arc_env.scene import RobotSource, SceneConfig
 from planners.random_planner import RandomPlanner
@@ -91,8 +91,8 @@ def record_episode(settings: RecordSettings, progress: bool = True) -> dict:
         planner = RandomPlanner(env, np.random.default_rng(s.seed))
         writer = RecordingWriter(out, target, s.robot, video=s.video, fps=env.config.fps)
         names = env.scene.joint_names
-        started = time.perf_counter()
-        for i in range(s.motions):
+        bar = Progress(s.motions, "motions recorded", enabled=progress)
+        for _ in range(s.motions):
             action = planner.plan(obs)
             obs, _, _, _, info = env.step(action)
             if info["refused"]:
@@ -108,13 +108,8 @@ def record_episode(settings: RecordSettings, progress: bool = True) -> dict:
             positions = np.tile(q, (len(deltas), 1))
             positions[:, joint] += deltas
             writer.add_motion(names, positions, frames)
-            if progress:  # one line rewritten in a terminal, one line per motion in a log
-                tty = sys.stderr.isatty()
-                print(f"{chr(13) if tty else ''}recording motion {i + 1}/{s.motions} (joint {names[joint]}, "
-                      f"delta {delta:+.2f} rad, {len(deltas)} frames), {time.perf_counter() - started:.0f} s",
-                      end="" if tty else "\n", file=sys.stderr, flush=True)
-        if progress and sys.stderr.isatty():
-            print(file=sys.stderr)
+            bar.step(f"joint {names[joint]}, delta {delta:+.2f} rad, {len(deltas)} frames")
+        bar.close()
         T = env.T_true
         truth = {
             "note": "simulation ground truth of the recording beside this file; not part of the recording",
