@@ -229,6 +229,9 @@ class Calibrator:
                                          fit_eps=None if cfg.fit_eps_a is None else (cfg.fit_eps_a, cfg.fit_eps_d))
             except (InsufficientMotionsError, UnobservablePoseError) as exc:
                 message = str(exc)
+                if len(with_axis) < len(live):  # the motions that would fix it may be the ones without an axis
+                    message += (f" ({len(live) - len(with_axis)} of {len(live)} motions gave no axis; "
+                                "their reports say why)")
         else:
             message = (f"{len(with_axis)} motion(s) with an axis; the linear calibration needs 3")
 

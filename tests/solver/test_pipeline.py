@@ -117,7 +117,16 @@ def test_shoulder_joints_alone_never_give_a_pose():
         cal.add_motion(scene.random_motion(rng, joints=(0, 1, 2)).observation)
     assert cal.state.T_camera_base is None
     assert re.search(r"not fixed|cannot fix|do not fix", cal.state.message)
+    assert "gave no axis" not in cal.state.message
     assert not cal.state.converged
+    # a distal motion whose trajectories are straight lines gives no axis: the message points to it
+    deltas = np.linspace(0, 0.5, 20)
+    lines = tuple(KeypointTrack(np.array([400.0 + 30 * k, 300.0 + 11 * k]) + np.outer(deltas, [200.0, 80.0]), deltas)
+                  for k in range(10))
+    report = cal.add_motion(MotionObservation(np.zeros(7), 5, lines))
+    assert "lines, not ellipses" in report.stage_one
+    assert cal.state.T_camera_base is None
+    assert "1 of 9 motions gave no axis" in cal.state.message
 
 
 def test_motion_where_nothing_moved_is_rejected_with_reason(exact_episode):
