@@ -38,7 +38,7 @@ from arc_env.tracking import TrackerConfig, track_keypoints
 from solver.errors import ArcCalibError, InvalidInputError
 from solver.frames import check_transform, pose_errors, quaternion_xyzw_from_matrix
 from solver.observations import MotionObservation
-from solver.pipeline import Calibrator, CalibratorConfig, MotionReport
+from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig, MotionReport
 
 #: Result file format written by ``calibrate``.
 RESULT_FORMAT = "arc-calib result 1"
@@ -121,42 +121,40 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
     started = time.perf_counter()
     n = len(recording.motions)
     updated = False
-    bar = Progress(max(n, 1), "motions", enabled=progress)
-    for m in recording.motions:
-        diag = MotionDiagnostic(m.name, names[m.joint] if m.joint is not None else None, m.n_frames)
-        diagnostics.append(diag)
-        t0 = time.perf_counter()
-        if m.pruned:
-            diag.reason = m.pruned
-        else:
-            frames = recording.frames(m)
-            t1 = time.perf_counter()
-            result = track_keypoints(frames, m.delta, tracker)
-            del frames
-            t2 = time.perf_counter()
-            diag.tracks = len(result.tracks)
-            if not result.tracks:
-                diag.reason = "no keypoint tracks: nothing moved in the images (is the robot in view?)"
+    with Progress(max(n, 1), "motions", enabled=progress) as bar:
+        for m in recording.motions:
+            diag = MotionDiagnostic(m.name, names[m.joint] if m.joint is not None else None, m.n_frames)
+            diagnostics.append(diag)
+            t0 = time.perf_counter()
+            if m.pruned:
+                diag.reason = m.pruned
             else:
-                try:  # checked here: a motion the kinematics reject must not reach the calibrator
-                    recording.kinematics(m.q_start, m.joint)
-                except ArcCalibError as exc:
-                    diag.reason = f"the robot model rejects this motion: {exc}"
+                frames = recording.frames(m)
+                t1 = time.perf_counter()
+                result = track_keypoints(frames, m.delta, tracker)
+                del frames
+                t2 = time.perf_counter()
+                diag.tracks = len(result.tracks)
+                if not result.tracks:
+                    diag.reason = "no keypoint tracks: nothing moved in the images (is the robot in view?)"
                 else:
-                    obs = MotionObservation(q_start=m.q_start, joint=m.joint, tracks=tuple(result.tracks))
-                    update = len(calibrator.reports) >= 2  # Algorithm 1: update once 3 motions are in
-                    report = calibrator.add_motion(obs, update=update)
-                    by_report[report.index] = diag
-                    updated = update
-            seconds["decode"] += t1 - t0
-            seconds["tracking"] += t2 - t1
-            seconds["solver"] += time.perf_counter() - t2
-        diag.seconds = time.perf_counter() - t0
-        s = calibrator.state
-        est = f"{s.stage} estimate, {s.n_accepted} accepted" if s.T_camera_base is not None else "no estimate yet"
-        what = diag.reason[:60] if diag.reason and not diag.tracks else f"{diag.tracks} tracks"
-        bar.step(f"motion {m.name} joint {diag.joint or '-'}: {m.n_frames} frames, {what}; {est}")
-    bar.close()
+                    try:  # checked here: a motion the kinematics reject must not reach the calibrator
+                        recording.kinematics(m.q_start, m.joint)
+                    except ArcCalibError as exc:
+                        diag.reason = f"the robot model rejects this motion: {exc}"
+                    else:
+                        obs = MotionObservation(q_start=m.q_start, joint=m.joint, tracks=tuple(result.tracks))
+                        update = len(calibrator.reports) >= 2  # Algorithm 1: update once 3 motions are in
+                        report = calibrator.add_motion(obs, update=update)
+                        by_report[report.index] = diag
+                        updated = update
+                seconds["decode"] += t1 - t0
+                seconds["tracking"] += t2 - t1
+                seconds["solver"] += time.perf_counter() - t2
+            diag.seconds = time.perf_counter() - t0
+            what = diag.reason[:60] if diag.reason and not diag.tracks else f"{diag.tracks} tracks"
+            bar.step(f"motion {m.name} joint {diag.joint or '-'}: {m.n_frames} frames, {what}; "
+                     f"{estimate_status(calibrator.state)}")
     if calibrator.reports and not updated:  # the last motion added did not update (or failed)
         t0 = time.perf_counter()
         calibrator.update()
@@ -165,6 +163,13 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
         copy_report(r, by_report[r.index])
     seconds["total"] = time.perf_counter() - started
     return CalibrationRun(str(recording.path), calibrator, diagnostics, seconds, recording)
+
+
+def estimate_status(state: CalibrationState) -> str:
+    """The estimate in a few words for progress lines: ``refined estimate, 7 accepted`` or ``no estimate yet``."""
+    if state.T_camera_base is None:
+        return "no estimate yet"
+    return f"{state.stage} estimate, {state.n_accepted} accepted"
 
 
 def copy_report(report: MotionReport, diag: MotionDiagnostic) -> None:

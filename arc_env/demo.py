@@ -67,37 +67,36 @@ def _episode(env: ArcCalibEnv, args: argparse.Namespace) -> int:
           f"{'rot err':>9} {'trans err':>10} {'sec':>5}  note")
     started = time.perf_counter()
     # the table's rows are the log; the bar only adds to a terminal
-    bar = Progress(args.motions, "motions", enabled=sys.stderr.isatty())
     seconds = {"planning": 0.0, "transit": 0.0, "render": 0.0, "tracking": 0.0, "solver": 0.0}
-    for i in range(args.motions):
-        t0 = time.perf_counter()
-        try:
-            action = planner.plan(obs)
-        except ArcCalibError as exc:
+    with Progress(args.motions, "motions", enabled=sys.stderr.isatty()) as bar:
+        for i in range(args.motions):
+            t0 = time.perf_counter()
+            try:
+                action = planner.plan(obs)
+            except ArcCalibError as exc:
+                bar.clear()
+                print(f"arc-calib demo: the planner found no motion: {exc}", file=sys.stderr)
+                break
+            seconds["planning"] += time.perf_counter() - t0
+            obs, reward, terminated, truncated, info = env.step(action)
             bar.clear()
-            print(f"arc-calib demo: the planner found no motion: {exc}", file=sys.stderr)
-            break
-        seconds["planning"] += time.perf_counter() - t0
-        obs, reward, terminated, truncated, info = env.step(action)
-        bar.clear()
-        if info["refused"]:  # the planner checks validity, so this is a bug if it happens
-            print(f"{i + 1:>3} refused: {info['refused']}")
-            continue
-        m = info["motion"]
-        for k in env.last_seconds:
-            seconds[k] = seconds.get(k, 0.0) + env.last_seconds[k]
-        note = m["reason"] or (f"no axis (bundle adjustment only): {m['stage_one']}" if m["stage_one"] else "")
-        note = note or (info["message"] if info["T_camera_base"] is None else "")
-        rot = np.nan if info["rot_error_rad"] is None else info["rot_error_rad"]
-        trans = np.nan if info["trans_error_m"] is None else info["trans_error_m"]
-        print(f"{i + 1:>3} {m['joint'] + 1:>5} {float(action['delta'][0]):>6.2f} {info['n_frames']:>6} "
-              f"{m['n_tracks']:>6} {'accepted' if m['accepted'] else 'rejected':>9} {info['stage']:>8} "
-              f"{rot:>9.2e} {trans * 1e3:>7.2f} mm {time.perf_counter() - t0:>5.1f}  {note[:60]}"
-              + ("  [converged]" if obs["converged"] else ""))
-        bar.step(f"{info['stage']} estimate" + (", converged" if obs["converged"] else ""))
-        if (terminated and args.stop_when_converged) or truncated:
-            break
-    bar.close()
+            if info["refused"]:  # the planner checks validity, so this is a bug if it happens
+                print(f"{i + 1:>3} refused: {info['refused']}")
+                continue
+            m = info["motion"]
+            for k in env.last_seconds:
+                seconds[k] = seconds.get(k, 0.0) + env.last_seconds[k]
+            note = m["reason"] or (f"no axis (bundle adjustment only): {m['stage_one']}" if m["stage_one"] else "")
+            note = note or (info["message"] if info["T_camera_base"] is None else "")
+            rot = np.nan if info["rot_error_rad"] is None else info["rot_error_rad"]
+            trans = np.nan if info["trans_error_m"] is None else info["trans_error_m"]
+            print(f"{i + 1:>3} {m['joint'] + 1:>5} {float(action['delta'][0]):>6.2f} {info['n_frames']:>6} "
+                  f"{m['n_tracks']:>6} {'accepted' if m['accepted'] else 'rejected':>9} {info['stage']:>8} "
+                  f"{rot:>9.2e} {trans * 1e3:>7.2f} mm {time.perf_counter() - t0:>5.1f}  {note[:60]}"
+                  + ("  [converged]" if obs["converged"] else ""))
+            bar.step(f"{info['stage']} estimate" + (", converged" if obs["converged"] else ""))
+            if (terminated and args.stop_when_converged) or truncated:
+                break
     total = time.perf_counter() - started
     cal = env.calibrator
     s = cal.state

@@ -19,7 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
-from arc_env.calibrate import CalibrationRun, MotionDiagnostic, check_output, copy_report, finish
+from arc_env.calibrate import (
+    CalibrationRun,
+    MotionDiagnostic,
+    check_output,
+    copy_report,
+    estimate_status,
+    finish,
+)
 from arc_env.driver import DriverEnv, RobotDriver, Sweep
 from arc_env.env import EnvConfig
 from arc_env.progress import Progress
@@ -75,29 +82,27 @@ def run_online(args: argparse.Namespace) -> int:
                    else RandomPlanner(env, rng, RandomPlannerConfig(max_image_tests=0)))
         diagnostics: list[MotionDiagnostic] = []
         seconds = {"robot": 0.0, "tracking": 0.0, "solver": 0.0}
-        bar = Progress(args.motions, "motions", enabled=not args.quiet)
-        while True:
-            try:
-                action = planner.plan(obs)
-            except ArcCalibError as exc:
-                bar.clear()
-                print(f"the planner found no motion: {exc}", file=sys.stderr)
-                break
-            obs, _, terminated, truncated, info = env.step(action)
-            if info["refused"]:
-                raise ArcCalibError(f"the twin refused the planner's motion: {info['refused']}")
-            m = info["motion"]
-            for key, part in (("robot", "render"), ("tracking", "tracking"), ("solver", "solver")):
-                seconds[key] += env.last_seconds.get(part, 0.0)
-            diagnostics.append(MotionDiagnostic(f"{len(diagnostics):03d}", driver.joint_names[m["joint"]],
-                                                info["n_frames"], m["n_tracks"]))
-            s = env.calibrator.state
-            est = f"{s.stage} estimate, {s.n_accepted} accepted" if s.T_camera_base is not None else "no estimate"
-            bar.step(f"joint {driver.joint_names[m['joint']]}, {info['n_frames']} frames, {m['n_tracks']} tracks; "
-                     f"{est}{' [converged]' if s.converged else ''}")
-            if terminated or truncated:
-                break
-        bar.close()
+        with Progress(args.motions, "motions", enabled=not args.quiet) as bar:
+            while True:
+                try:
+                    action = planner.plan(obs)
+                except ArcCalibError as exc:
+                    bar.clear()
+                    print(f"the planner found no motion: {exc}", file=sys.stderr)
+                    break
+                obs, _, terminated, truncated, info = env.step(action)
+                if info["refused"]:
+                    raise ArcCalibError(f"the twin refused the planner's motion: {info['refused']}")
+                m = info["motion"]
+                for key, part in (("robot", "render"), ("tracking", "tracking"), ("solver", "solver")):
+                    seconds[key] += env.last_seconds.get(part, 0.0)
+                diagnostics.append(MotionDiagnostic(f"{len(diagnostics):03d}", driver.joint_names[m["joint"]],
+                                                    info["n_frames"], m["n_tracks"]))
+                s = env.calibrator.state
+                bar.step(f"joint {driver.joint_names[m['joint']]}, {info['n_frames']} frames, {m['n_tracks']} tracks; "
+                         f"{estimate_status(s)}{' [converged]' if s.converged else ''}")
+                if terminated or truncated:
+                    break
         for report, diag in zip(env.calibrator.reports, diagnostics, strict=True):
             copy_report(report, diag)
         if writer is not None:

@@ -91,25 +91,24 @@ def record_episode(settings: RecordSettings, progress: bool = True) -> dict:
         planner = RandomPlanner(env, np.random.default_rng(s.seed))
         writer = RecordingWriter(out, target, s.robot, video=s.video, fps=env.config.fps)
         names = env.scene.joint_names
-        bar = Progress(s.motions, "motions recorded", enabled=progress)
-        for _ in range(s.motions):
-            action = planner.plan(obs)
-            obs, _, _, _, info = env.step(action)
-            if info["refused"]:
-                raise ArcCalibError(f"the env refused the planner's motion: {info['refused']}")
-            q, joint, delta = np.asarray(action["Q"], float), int(action["J"]), float(action["delta"][0])
-            deltas = env.sweep_deltas(delta)
-            frames = []
-            for d in deltas:
-                env.scene.set_swept(q, joint, d)
-                image = env.scene.render()
-                frames.append(distorter(image) if distorter else image)
-            env.scene.set_swept(q, joint, delta)
-            positions = np.tile(q, (len(deltas), 1))
-            positions[:, joint] += deltas
-            writer.add_motion(names, positions, frames)
-            bar.step(f"joint {names[joint]}, delta {delta:+.2f} rad, {len(deltas)} frames")
-        bar.close()
+        with Progress(s.motions, "motions recorded", enabled=progress) as bar:
+            for _ in range(s.motions):
+                action = planner.plan(obs)
+                obs, _, _, _, info = env.step(action)
+                if info["refused"]:
+                    raise ArcCalibError(f"the env refused the planner's motion: {info['refused']}")
+                q, joint, delta = np.asarray(action["Q"], float), int(action["J"]), float(action["delta"][0])
+                deltas = env.sweep_deltas(delta)
+                frames = []
+                for d in deltas:
+                    env.scene.set_swept(q, joint, d)
+                    image = env.scene.render()
+                    frames.append(distorter(image) if distorter else image)
+                env.scene.set_swept(q, joint, delta)
+                positions = np.tile(q, (len(deltas), 1))
+                positions[:, joint] += deltas
+                writer.add_motion(names, positions, frames)
+                bar.step(f"joint {names[joint]}, delta {delta:+.2f} rad, {len(deltas)} frames")
         T = env.T_true
         truth = {
             "note": "simulation ground truth of the recording beside this file; not part of the recording",

@@ -262,9 +262,9 @@ class _Whitened:
         self.problem = problem
         self.x0 = x0
         blocks = problem.jacobian_blocks(x0)
-        Jp, Jx = blocks[:, :, :6], blocks[:, :, 6:]
-        self.Ap = _inverse_cholesky_t(np.einsum("pki,pkj->ij", Jp, Jp))
-        self.Aq = _inverse_cholesky_t(_per_track_sum(np.einsum("pki,pkj->pij", Jx, Jx), problem.tracks))
+        U, V = _diagonal_blocks(blocks, problem.tracks)
+        self.Ap = _inverse_cholesky_t(U)
+        self.Aq = _inverse_cholesky_t(V)
         self.Aq_obs = self.Aq[problem.tracks.track]  # (P, 3, 3)
         self._blocks_x0: FloatArray | None = blocks  # TRF's first Jacobian is at z = 0: x0's blocks
 
@@ -308,6 +308,12 @@ def _per_track_sum(values: FloatArray, tracks: TrackSet) -> FloatArray:
     return out
 
 
+def _diagonal_blocks(blocks: FloatArray, tracks: TrackSet) -> tuple[FloatArray, FloatArray]:
+    """The pose's block U (6, 6) and each track's point block V (T, 3, 3) of J^T J, from the blocks (P, 2, 9)."""
+    Jp, Jx = blocks[:, :, :6], blocks[:, :, 6:]
+    return np.einsum("pki,pkj->ij", Jp, Jp), _per_track_sum(np.einsum("pki,pkj->pij", Jx, Jx), tracks)
+
+
 #: TRF's first trust region in whitened units (a unit step changes the residual vector by about
 #: 1 px in norm): large enough for a warm start's step, so a pass does not spend its first
 #: iterations doubling a unit region (20-40% fewer evaluations on scripts/bench_solver.py).
@@ -346,10 +352,9 @@ def _schur_parts(problem: _Problem, x: FloatArray) -> tuple[FloatArray, FloatArr
     block of J^T J with every track's point marginalized out, px^2 per (rad or m)^2.
     """
     blocks = problem.jacobian_blocks(x)
-    Jp, Jx = blocks[:, :, :6], blocks[:, :, 6:]
-    U = np.einsum("pki,pkj->ij", Jp, Jp)
-    W = _per_track_sum(np.einsum("pki,pkj->pij", Jp, Jx), problem.tracks)
-    V_inv = np.linalg.inv(_per_track_sum(np.einsum("pki,pkj->pij", Jx, Jx), problem.tracks) + 1e-12 * np.eye(3))
+    U, V = _diagonal_blocks(blocks, problem.tracks)
+    W = _per_track_sum(np.einsum("pki,pkj->pij", blocks[:, :, :6], blocks[:, :, 6:]), problem.tracks)
+    V_inv = np.linalg.inv(V + 1e-12 * np.eye(3))
     return blocks, W, V_inv, U - np.einsum("tij,tjk,tlk->il", W, V_inv, W)
 
 
@@ -377,14 +382,18 @@ def clustered_pose_covariance(problem: _Problem, x: FloatArray) -> FloatArray:
     track (a tracker drifting off its feature) but not across tracks. Scaled by
     T / (T - 1) * m / (m - n) for the clusters and the fitted parameters (m residuals, n unknowns).
     """
-    return _pose_covariances(problem, x, 1.0)[1]
+    return _pose_covariances(problem, x, 1.0, problem.residuals(x))[1]
 
 
-def _pose_covariances(problem: _Problem, x: FloatArray, sigma2: float) -> tuple[FloatArray, FloatArray]:
-    """``pose_covariance`` and ``clustered_pose_covariance`` at x from one evaluation of the blocks."""
+def _pose_covariances(problem: _Problem, x: FloatArray, sigma2: float,
+                      residuals: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``pose_covariance`` and ``clustered_pose_covariance`` at x from one evaluation of the blocks.
+
+    ``residuals``: (2P,) float64, px, the residuals at x (the solver's ``fun``: not evaluated again).
+    """
     blocks, W, V_inv, S = _schur_parts(problem, x)
     Jp, Jx = blocks[:, :, :6], blocks[:, :, 6:]
-    r = problem.residuals(x).reshape(-1, 2)
+    r = residuals.reshape(-1, 2)
     tracks = problem.tracks
     g = (_per_track_sum(np.einsum("pki,pk->pi", Jp, r), tracks)
          - np.einsum("tij,tjk,tk->ti", W, V_inv, _per_track_sum(np.einsum("pki,pk->pi", Jx, r), tracks)))
@@ -468,7 +477,7 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     T, pts2, problem, x, sol = _solve(sub2, T, pts[good], "linear", 1.0, config.max_nfev, 1e-8)
     m, n = sol.fun.size, sol.x.size
     sigma2 = float(np.sum(sol.fun**2) / max(m - n, 1))
-    cov = conservative_covariance(*_pose_covariances(problem, x, sigma2))
+    cov = conservative_covariance(*_pose_covariances(problem, x, sigma2, sol.fun))
     inliers = np.zeros(tracks.n_tracks, dtype=bool)
     kept_idx = np.flatnonzero(keep)[good]
     inliers[kept_idx] = True
