@@ -41,11 +41,25 @@ the axis and the optical axis; "lines, not ellipses" says it was seen edge-on); 
 of their axis line against the motions that gave an axis (angle and distance: lines that all
 meet in one point cannot fix depth); (3) |Delta|. Of the best few, the one whose start and end
 frames differ in the most pixels (the image test a real robot does with two snapshots) is chosen.
+
+Between two axes and the first estimate. Two motions whose axes stage one recovered (not
+parallel) already fix the rotation and two of the translation's three components; what they leave
+free is the distance along one ray from the camera (``solver.calibration.pose_family``: each
+motion's circles fix its axis only up to the axis' own distance). The third motion is the one that
+fixes it best, so from then on candidates are scored as above with the D-optimal gain, averaged over
+``n_hypotheses`` members of that family that put the arm's axes in front of the camera at depths
+spread over ``hypothesis_depths`` (the one assumption: the camera is 0.5-3 m from the arm), and
+weighted by the ellipse quality of the axis seen with the known rotation and by the expected
+track count, since the linear calibration needs stage one to read the motion's ellipses (edge-on
+circles are lines; a few short arcs leave the axis ambiguous). This
+replaces the bootstrap's proxies (posterior viewing direction, line novelty) with the prediction
+itself once R is known: ellipse quality, visibility and the information about the free depth.
 """
 
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -57,6 +71,7 @@ from scipy.spatial.transform import Rotation
 from planners.ik import IKSolver, target_in_view
 from planners.random_planner import image_change, prepare_image_test
 from planners.sampling import check_sampling, random_delta, random_motion, random_q
+from solver.calibration import AxisCorrespondence, pose_family
 from solver.camera import normalized_from_pixels
 from solver.errors import ArcCalibError, InvalidInputError
 from solver.frames import transform_from_rt
@@ -71,6 +86,8 @@ FloatArray = NDArray[np.float64]
 #: camera image, and no narrower than OCCLUSION_MIN_WIDTH px (else the whole image).
 OCCLUSION_DOWNSCALE = 4
 OCCLUSION_MIN_WIDTH = 480
+#: m; pose hypotheses are searched this far either side of the least-norm member of the family.
+HYPOTHESIS_RANGE_M = 6.0
 
 
 @dataclass(frozen=True)
@@ -111,6 +128,12 @@ class InformedPlannerConfig:
             every frame takes the verdict of the nearest).
         occlusion_tolerance_m: m; a point is hidden when the rendered surface at its pixel is
             nearer than the point by more than this.
+        n_hypotheses: pose hypotheses planned with once two motions gave axes but no estimate
+            exists (``pose_hypotheses``); 0 keeps the bootstrap score until the first estimate.
+        hypothesis_depths: (min, max) m; the depths of the arm's axes the hypotheses may put them
+            at (the camera is assumed this far from the arm).
+        min_axis_angle: rad; the axes must span at least this angle for the hypotheses (two
+            nearly parallel axes fix the rotation about them poorly).
     """
 
     delta_range: tuple[float, float] = (0.6, 1.5)
@@ -136,6 +159,9 @@ class InformedPlannerConfig:
     occlusion_checks: int = 4
     occlusion_frames: int = 3
     occlusion_tolerance_m: float = 0.02
+    n_hypotheses: int = 3
+    hypothesis_depths: tuple[float, float] = (0.5, 3.0)
+    min_axis_angle: float = 0.3
 
     def __post_init__(self) -> None:
         check_sampling(self.delta_range, self.limit_margin)
@@ -149,6 +175,8 @@ class InformedPlannerConfig:
             raise InvalidInputError("bootstrap_candidates must be >= 1, bootstrap_image_tests >= 0")
         if self.occlusion_checks < 0 or self.occlusion_frames < 2 or self.occlusion_tolerance_m <= 0:
             raise InvalidInputError("need occlusion_checks >= 0, occlusion_frames >= 2, occlusion_tolerance_m > 0")
+        if self.n_hypotheses < 0 or not 0 < self.hypothesis_depths[0] < self.hypothesis_depths[1]:
+            raise InvalidInputError("need n_hypotheses >= 0 and 0 < hypothesis_depths[0] < hypothesis_depths[1]")
 
 
 @dataclass(frozen=True)
@@ -163,6 +191,7 @@ class ScoredMotion:
         in_view: fraction of sampled points in view at the worse end of the sweep.
         source: "random" or "ik".
         occlusion: whether the gain accounts for occlusion (else it is an upper bound).
+        tracks: tracks the bundle adjustment is expected to get (``expected_tracks``).
     """
 
     q: FloatArray
@@ -172,6 +201,7 @@ class ScoredMotion:
     in_view: float
     source: str
     occlusion: bool = False
+    tracks: float = 0.0
 
 
 class InformedPlanner:
@@ -310,8 +340,11 @@ class InformedPlanner:
         c = self.config
         return min(float(c.predicted_tracks), self._tracks_per_px2 * area_px)
 
-    def information_so_far(self, T: FloatArray) -> FloatArray:
+    def information_so_far(self, T: FloatArray, motions: Sequence[int] | None = None) -> FloatArray:
         """The prior plus the predicted information (6, 6) of the executed motions the calibrator accepted.
+
+        ``motions`` (indices of executed motions) replaces "accepted" when given: before an
+        estimate no motion is accepted yet, though those with an axis will be used.
 
         Also refits the tracker's yield per projected pixel (``expected_tracks``) from the
         executed motions' track counts and predicted areas.
@@ -328,8 +361,8 @@ class InformedPlanner:
             area += motion_area
             per_motion.append((reports[i], motion_info, motion_area))
         self._tracks_per_px2 = tracks / area
-        for report, motion_info, _ in per_motion:
-            if report.accepted:
+        for i, (report, motion_info, _) in enumerate(per_motion):
+            if (report.accepted if motions is None else i in motions):
                 info = info + motion_info * min(report.n_tracks, c.predicted_tracks)
         return info
 
@@ -341,11 +374,11 @@ class InformedPlanner:
         never adds information; the expected track count comes from the same projected area).
         """
         info, in_view, area = self.predicted_information(q, joint, delta, T, occlusion)
+        tracks = self.expected_tracks(area)
         if in_view < self.config.min_in_view:
-            return ScoredMotion(q, joint, delta, -np.inf, in_view, source, occlusion)
-        info = info * self.expected_tracks(area)
-        gain = np.linalg.slogdet(info_so_far + info)[1] - np.linalg.slogdet(info_so_far)[1]
-        return ScoredMotion(q, joint, delta, float(gain), in_view, source, occlusion)
+            return ScoredMotion(q, joint, delta, -np.inf, in_view, source, occlusion, tracks)
+        gain = np.linalg.slogdet(info_so_far + info * tracks)[1] - np.linalg.slogdet(info_so_far)[1]
+        return ScoredMotion(q, joint, delta, float(gain), in_view, source, occlusion, tracks)
 
     # -- planning ------------------------------------------------------------------------------
     def plan(self, observation: dict[str, Any]) -> dict[str, Any]:
@@ -357,25 +390,62 @@ class InformedPlanner:
         if int(observation.get("has_estimate", 0)):
             R = Rotation.from_rotvec(np.asarray(observation["rotation"], dtype=np.float64)).as_matrix()
             return self._plan_informed(transform_from_rt(R, np.asarray(observation["translation"], dtype=np.float64)))
+        hypotheses = self.pose_hypotheses()
+        if hypotheses:
+            return self._plan_hypotheses(hypotheses)
         return self._plan_bootstrap()
 
     def _plan_informed(self, T: FloatArray) -> dict[str, Any]:
+        return self._plan_scored([T], [self.information_so_far(T)])
+
+    def _score_all(self, q: FloatArray, joint: int, delta: float, poses: list[FloatArray],
+                   so_far: list[FloatArray], source: str, occlusion: bool = False,
+                   need_axis: bool = False) -> ScoredMotion:
+        """``score`` averaged over pose hypotheses (a hypothesis that loses the links from view adds 0).
+
+        With ``need_axis`` (no estimate yet: the motion must give stage one an axis for the linear
+        calibration) the gain is weighted by ``ellipse_quality`` of the axis seen with the
+        hypotheses' rotation (they share it), since edge-on circles are lines to stage one, and by
+        the expected tracks over ``predicted_tracks`` (at most 1), since few short arcs leave the
+        axis ambiguous (seen: 21 tracks of the hand, two axes fitting within 1.09x).
+        """
+        scored = [self.score(q, joint, delta, T, info, source, occlusion)
+                  for T, info in zip(poses, so_far, strict=True)]
+        gains = np.array([m.gain for m in scored])
+        if len(scored) == 1 and not need_axis:
+            return scored[0]
+        gain = float(np.mean(np.where(np.isfinite(gains), gains, 0.0))) if np.isfinite(gains).any() else -np.inf
+        tracks = float(np.mean([m.tracks for m in scored]))
+        if need_axis and np.isfinite(gain):
+            axis_cam = poses[0][:3, :3] @ self.env.scene.axis_and_point(q, joint)[0]
+            gain *= float(self.ellipse_quality(np.array([axis_cam[2]]))[0])
+            gain *= min(1.0, tracks / self.config.predicted_tracks)
+        return ScoredMotion(q, joint, delta, gain, max(m.in_view for m in scored), source, occlusion, tracks)
+
+    def _plan_scored(self, poses: list[FloatArray], so_far: list[FloatArray], need_axis: bool = False,
+                     ) -> dict[str, Any]:
         c = self.config
-        so_far = self.information_so_far(T)
+        mid = len(poses) // 2
+        ik_pose = poses[mid]
         for _ in range(c.max_rounds):
             scored: list[ScoredMotion] = []
             for k in range(c.n_random + c.n_ik):
                 source = "random" if k < c.n_random else "ik"
                 try:
-                    cand = self._random_candidate() if source == "random" else self._ik_candidate(T)
+                    cand = self._random_candidate() if source == "random" else self._ik_candidate(ik_pose)
                 except ArcCalibError:
                     cand = None
                 if cand is None:
                     continue
-                sm = self.score(*cand, T, so_far, source)
+                # several hypotheses: screen every candidate with the middle one, average the best over all
+                sm = self._score_all(*cand, poses[mid:mid + 1], so_far[mid:mid + 1], source, need_axis=need_axis)
                 if np.isfinite(sm.gain):
                     scored.append(sm)
             scored.sort(key=lambda m: -m.gain)
+            if len(poses) > 1:
+                scored = [self._score_all(m.q, m.joint, m.delta, poses, so_far, m.source, need_axis=need_axis)
+                          for m in scored[:c.n_validate]]
+                scored = sorted((m for m in scored if np.isfinite(m.gain)), key=lambda m: -m.gain)
             self.last_candidates = scored
             # best first: check validity; a valid candidate whose gain ignores occlusion is rescored
             # with it and goes back into the queue, since its gain can only drop. Once the checks are
@@ -391,12 +461,67 @@ class InformedPlanner:
                     m = next((x for x in queue if x.occlusion), m)
                     return {"Q": m.q, "J": m.joint, "delta": np.array([m.delta])}
                 checks += 1
-                exact = self.score(m.q, m.joint, m.delta, T, so_far, m.source, occlusion=True)
+                exact = self._score_all(m.q, m.joint, m.delta, poses, so_far, m.source, occlusion=True,
+                                        need_axis=need_axis)
                 if np.isfinite(exact.gain):
                     queue.append(exact)
                     queue.sort(key=lambda x: -x.gain)
         raise InvalidInputError(f"no valid, visible motion in {c.max_rounds} rounds of "
                                 f"{c.n_random + c.n_ik} candidates")
+
+    def pose_hypotheses(self) -> list[FloatArray]:
+        """Poses (4, 4) to plan with before an estimate, once two motions gave non-parallel axes.
+
+        Two axes fix the rotation and two components of the translation
+        (``solver.calibration.pose_family``); the third, the distance along a ray from the camera,
+        stays free until a third motion. The members kept put each axis where it crosses the ray
+        to its circles' centres (D^c) in front of the camera, with the axes' mean point at a depth within
+        ``hypothesis_depths``; ``n_hypotheses`` of them, evenly spread in that depth, are returned
+        (empty: fewer than two axes, all within ``min_axis_angle`` of parallel, or no member in range).
+        """
+        c, s = self.config, self.env.scene
+        calibrator = self.env.calibrator
+        if calibrator is None or c.n_hypotheses < 1:
+            return []
+        cors, refs = [], []
+        for i, (q, joint, _) in enumerate(self.env.executed[:len(calibrator.reports)]):
+            geometry = calibrator.motion_geometry(i)
+            if geometry is not None:
+                axis, point = s.axis_and_point(q, joint)
+                cors.append(AxisCorrespondence(axis, point, geometry.axis_cam, geometry.plane_normal))
+                refs.append(geometry.reference_cam * np.sign(geometry.reference_cam[2]))  # the ray in front
+        if len(cors) < 2:
+            return []
+        axes = np.array([cor.axis_base for cor in cors])
+        if np.linalg.svd(axes, compute_uv=False)[1] < np.sin(c.min_axis_angle):
+            return []  # nearly parallel axes leave the rotation about them poorly fixed
+        try:
+            R, t0, u = pose_family(cors)
+        except ArcCalibError:
+            return []
+        ts = t0 + np.linspace(-HYPOTHESIS_RANGE_M, HYPOTHESIS_RANGE_M, 2001)[:, None] * u  # (S, 3)
+        ok = np.ones(len(ts), dtype=bool)
+        for cor, ref in zip(cors, refs, strict=True):
+            p = (R @ cor.point_base)[None, :] + ts  # (S, 3) a point of the axis, camera frame
+            a = R @ cor.axis_base
+            foot = p - (p @ a)[:, None] * a  # the axis' point nearest the camera centre
+            ok &= foot @ ref > 0  # the axis crosses the ray to its circles' centres in front of the camera
+        depth = (R @ np.mean([cor.point_base for cor in cors], axis=0))[None, :] + ts
+        depth = depth[:, 2]
+        ok &= (depth >= c.hypothesis_depths[0]) & (depth <= c.hypothesis_depths[1])
+        if not ok.any():
+            return []
+        lo, hi = depth[ok].min(), depth[ok].max()
+        picks = []
+        for target in np.linspace(lo, hi, c.n_hypotheses + 2)[1:-1] if c.n_hypotheses > 1 else [0.5 * (lo + hi)]:
+            k = int(np.argmin(np.where(ok, np.abs(depth - target), np.inf)))
+            picks.append(transform_from_rt(R, ts[k]))
+        return picks
+
+    def _plan_hypotheses(self, poses: list[FloatArray]) -> dict[str, Any]:
+        calibrator = self.env.calibrator
+        with_axis = [i for i in range(len(calibrator.reports)) if calibrator.motion_geometry(i) is not None]
+        return self._plan_scored(poses, [self.information_so_far(T, with_axis) for T in poses], need_axis=True)
 
     def view_direction_posterior(self) -> tuple[FloatArray, FloatArray]:
         """Belief about the camera's optical axis in the base frame, from stage one's verdicts.

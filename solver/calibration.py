@@ -103,6 +103,37 @@ def solve_minimal(correspondences: Sequence[AxisCorrespondence]) -> FloatArray:
     return transform_from_rt(R, _translation(correspondences, R, np.ones(n)))
 
 
+def pose_family(correspondences: Sequence[AxisCorrespondence]) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The poses [R | t0 + s u] (s real) that two or more motions' axes allow, and their rotation.
+
+    Two motions with non-parallel axes fix R (Procrustes, as ``solve_minimal``) but only two
+    components of t: each reference plane through the camera centre gives one (coplanarity), and
+    the circles' images fix each axis only up to its own distance from the camera, so t stays free
+    along u, the direction in which both planes contain the camera centre's ray (rho_1 x rho_2).
+    With more motions u is t's weakest direction and t0 the least-squares translation.
+
+    Returns:
+        R (3, 3); t0 (3,) m, the translation of least norm (the member nearest the camera
+        centre); u (3,) unit.
+
+    Raises:
+        InsufficientMotionsError: fewer than two motions.
+        UnobservablePoseError: the axes are parallel (R is not fixed).
+    """
+    n = len(correspondences)
+    if n < 2:
+        raise InsufficientMotionsError(f"{n} motion(s) given; a rotation needs at least 2")
+    B = sum(np.outer(c.axis_cam, c.axis_base) for c in correspondences)
+    sv = np.linalg.svd(B, compute_uv=False)
+    if sv[1] < 1e-6 * sv[0]:
+        raise UnobservablePoseError("the rotation is not fixed by these motions (their axes are parallel)")
+    R = project_to_so3(B)
+    K = np.array([c.plane_normal for c in correspondences])
+    b = -np.array([c.plane_normal @ (R @ c.point_base) for c in correspondences])
+    t0 = np.linalg.lstsq(K, b, rcond=None)[0]  # of least norm when K has rank 2
+    return R, t0, np.linalg.svd(K)[2][-1]
+
+
 def solve_linear(correspondences: Sequence[AxisCorrespondence],
                  depths: FloatArray | None = None) -> FloatArray:
     """T_camera_base (4, 4) by the paper's linear method.

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 import arc_env  # noqa: F401  (GL backend before MuJoCo)
 from arc_env.env import ArcCalibEnv, EnvConfig
@@ -145,3 +146,38 @@ def test_informed_planner_is_deterministic_with_a_seed():
         np.testing.assert_array_equal(a["Q"], b["Q"])
         assert a["J"] == b["J"]
         np.testing.assert_array_equal(a["delta"], b["delta"])
+
+
+def test_pose_hypotheses_share_the_true_rotation_and_span_the_free_depth():
+    """Two motions with axes: the hypotheses have the true R and lie on the family through the true t."""
+    centre = np.array([0.3, 0.0, 0.4])
+    T_true = look_at(centre + np.array([1.2, -1.0, 0.6]), centre)
+    env = ArcCalibEnv(EnvConfig(scene=SceneConfig(width=960, height=540), oracle_keypoints=True))
+    try:
+        env.reset(seed=1, options={"camera_pose": T_true})
+        planner = InformedPlanner(env, np.random.default_rng(1))
+        assert planner.pose_hypotheses() == []  # nothing executed
+        q = np.array([0.2, 0.3, 0.0, -1.8, 0.9, 1.9, 0.8])
+        for joint, delta in ((0, 0.8), (3, -0.9)):  # base and elbow: skew, perpendicular axes
+            _, _, _, _, info = env.step({"Q": q, "J": joint, "delta": np.array([delta])})
+            assert info["refused"] == ""
+        assert all(env.calibrator.motion_geometry(i) is not None for i in range(2))
+        hypotheses = planner.pose_hypotheses()
+        assert len(hypotheses) == planner.config.n_hypotheses
+        R_true, t_true = T_true[:3, :3], T_true[:3, 3]
+        ts = np.array([T[:3, 3] for T in hypotheses])
+        u = (ts[-1] - ts[0]) / np.linalg.norm(ts[-1] - ts[0])
+        for T in hypotheses:
+            angle = np.linalg.norm(Rotation.from_matrix(T[:3, :3] @ R_true.T).as_rotvec())
+            assert angle < 0.02  # rad: two oracle axes at 0.5 px
+        off = t_true - ts[0]
+        assert np.linalg.norm(off - (off @ u) * u) < 0.03  # m: the true pose is (nearly) a member
+        anchor = np.mean([env.scene.axis_and_point(q, j)[1] for j in (0, 3)], axis=0)
+        depths = [(T[:3, :3] @ anchor + T[:3, 3])[2] for T in hypotheses]
+        lo, hi = planner.config.hypothesis_depths
+        assert lo <= depths[0] < depths[1] < depths[2] <= hi
+        action = planner.plan({"has_estimate": 0})  # plans with the hypotheses: a valid motion
+        assert env.validate(action["Q"], action["J"], float(action["delta"][0])) == ""
+        assert len(planner.last_candidates) > 0
+    finally:
+        env.close()

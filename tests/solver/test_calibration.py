@@ -11,6 +11,7 @@ from solver.calibration import (
     AxisCorrespondence,
     check_observable,
     consistency_errors,
+    pose_family,
     pose_observability,
     solve_consensus,
     solve_linear,
@@ -248,3 +249,35 @@ def test_shoulder_axes_plus_a_distal_joint_are_observable(T_true, rng):
 def test_random_motions_are_observable(T_true, rng):
     ratio, _ = pose_observability(_random_correspondences(T_true, rng, 6), T_true)
     assert ratio > MIN_OBSERVABILITY
+
+
+def test_pose_family_of_two_motions_contains_the_pose_and_fixes_rotation(T_true, rng):
+    motions = _random_correspondences(T_true, rng, 2)
+    R, t0, u = pose_family(motions)
+    np.testing.assert_allclose(R, T_true[:3, :3], atol=POSE_TOL)
+    offset = T_true[:3, 3] - t0
+    np.testing.assert_allclose(offset - (offset @ u) * u, 0.0, atol=POSE_TOL)  # T_true is a member
+    assert abs(t0 @ u) < POSE_TOL  # least norm
+    for s in (-1.0, 0.5, 3.0):  # every member satisfies both motions exactly
+        T = T_true.copy()
+        T[:3, 3] = t0 + s * u
+        for c in motions:
+            assert consistency_errors(c, T)[1] < POSE_TOL
+    # and the free direction is real: the two planes both contain the ray along u
+    for c in motions:
+        assert abs(c.plane_normal @ u) < POSE_TOL
+
+
+def test_pose_family_with_three_motions_is_the_pose(T_true, rng):
+    R, t0, _ = pose_family(_random_correspondences(T_true, rng, 3))
+    np.testing.assert_allclose(R, T_true[:3, :3], atol=POSE_TOL)
+    np.testing.assert_allclose(t0, T_true[:3, 3], atol=POSE_TOL)
+
+
+def test_pose_family_needs_two_non_parallel_axes(T_true, rng):
+    with pytest.raises(InsufficientMotionsError):
+        pose_family(_random_correspondences(T_true, rng, 1))
+    a = random_unit(rng)
+    parallel = [_correspondence(T_true, a, rng.uniform(-0.4, 0.4, 3)) for _ in range(2)]
+    with pytest.raises(UnobservablePoseError):
+        pose_family(parallel)
