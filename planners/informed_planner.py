@@ -411,9 +411,9 @@ class InformedPlanner:
         """
         scored = [self.score(q, joint, delta, T, info, source, occlusion)
                   for T, info in zip(poses, so_far, strict=True)]
-        gains = np.array([m.gain for m in scored])
         if len(scored) == 1 and not need_axis:
             return scored[0]
+        gains = np.array([m.gain for m in scored])
         gain = float(np.mean(np.where(np.isfinite(gains), gains, 0.0))) if np.isfinite(gains).any() else -np.inf
         tracks = float(np.mean([m.tracks for m in scored]))
         if need_axis and np.isfinite(gain):
@@ -506,14 +506,13 @@ class InformedPlanner:
             a = R @ cor.axis_base
             foot = p - (p @ a)[:, None] * a  # the axis' point nearest the camera centre
             ok &= foot @ ref > 0  # the axis crosses the ray to its circles' centres in front of the camera
-        depth = (R @ np.mean([cor.point_base for cor in cors], axis=0))[None, :] + ts
-        depth = depth[:, 2]
+        depth = (R @ np.mean([cor.point_base for cor in cors], axis=0))[2] + ts[:, 2]  # (S,) m
         ok &= (depth >= c.hypothesis_depths[0]) & (depth <= c.hypothesis_depths[1])
         if not ok.any():
             return []
         lo, hi = depth[ok].min(), depth[ok].max()
         picks = []
-        for target in np.linspace(lo, hi, c.n_hypotheses + 2)[1:-1] if c.n_hypotheses > 1 else [0.5 * (lo + hi)]:
+        for target in np.linspace(lo, hi, c.n_hypotheses + 2)[1:-1]:
             k = int(np.argmin(np.where(ok, np.abs(depth - target), np.inf)))
             picks.append(transform_from_rt(R, ts[k]))
         return picks

@@ -80,6 +80,22 @@ def _translation(correspondences: Sequence[AxisCorrespondence], R: FloatArray,
     return np.linalg.lstsq(K, b, rcond=None)[0]
 
 
+def _rotation_from_axes(correspondences: Sequence[AxisCorrespondence]) -> FloatArray:
+    """R (3, 3) maximizing sum A^c . R a_b (Procrustes: SVD, det = +1); two non-parallel axes suffice.
+
+    Raises:
+        UnobservablePoseError: the axes are parallel.
+    """
+    B = sum(np.outer(c.axis_cam, c.axis_base) for c in correspondences)
+    sv = np.linalg.svd(B, compute_uv=False)
+    if sv[1] < 1e-6 * sv[0]:
+        raise UnobservablePoseError(
+            "the rotation is not fixed by these motions (their axes are parallel): add motions of "
+            "joints with other axis directions"
+        )
+    return project_to_so3(B)
+
+
 def solve_minimal(correspondences: Sequence[AxisCorrespondence]) -> FloatArray:
     """T_camera_base (4, 4) from three or more motions by Procrustes, then t by least squares.
 
@@ -92,14 +108,7 @@ def solve_minimal(correspondences: Sequence[AxisCorrespondence]) -> FloatArray:
     n = len(correspondences)
     if n < MIN_MOTIONS:
         raise InsufficientMotionsError(f"{n} motion(s) given; a pose needs at least {MIN_MOTIONS}")
-    B = sum(np.outer(c.axis_cam, c.axis_base) for c in correspondences)
-    sv = np.linalg.svd(B, compute_uv=False)
-    if sv[1] < 1e-6 * sv[0]:
-        raise UnobservablePoseError(
-            "the rotation is not fixed by these motions (their axes are parallel): add motions of "
-            "joints with other axis directions"
-        )
-    R = project_to_so3(B)
+    R = _rotation_from_axes(correspondences)
     return transform_from_rt(R, _translation(correspondences, R, np.ones(n)))
 
 
@@ -123,11 +132,7 @@ def pose_family(correspondences: Sequence[AxisCorrespondence]) -> tuple[FloatArr
     n = len(correspondences)
     if n < 2:
         raise InsufficientMotionsError(f"{n} motion(s) given; a rotation needs at least 2")
-    B = sum(np.outer(c.axis_cam, c.axis_base) for c in correspondences)
-    sv = np.linalg.svd(B, compute_uv=False)
-    if sv[1] < 1e-6 * sv[0]:
-        raise UnobservablePoseError("the rotation is not fixed by these motions (their axes are parallel)")
-    R = project_to_so3(B)
+    R = _rotation_from_axes(correspondences)
     K = np.array([c.plane_normal for c in correspondences])
     b = -np.array([c.plane_normal @ (R @ c.point_base) for c in correspondences])
     t0 = np.linalg.lstsq(K, b, rcond=None)[0]  # of least norm when K has rank 2
