@@ -60,9 +60,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
+from solver.arrays import FloatArray
 from solver.errors import InvalidInputError
-
-FloatArray = NDArray[np.float64]
 
 __all__ = ["CollisionChecker"]
 

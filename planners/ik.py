@@ -14,14 +14,12 @@ from dataclasses import dataclass
 
 import mink
 import numpy as np
-from numpy.typing import NDArray
 
-from arc_env.scene import Scene
+from planners.context import RobotKinematics
+from solver.arrays import FloatArray
 from solver.camera import normalized_from_pixels
 from solver.errors import InvalidInputError
 from solver.observations import CameraIntrinsics
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -69,20 +67,20 @@ class IKResult:
 
 
 class IKSolver:
-    """Position IK for one body of a scene's arm.
+    """Position IK for one body of a robot model's arm.
 
     Args:
-        scene: the scene (its model, arm joints and base frame; the scene's own state is untouched).
+        robot: the robot model (its MuJoCo model, arm joints and base frame; its own state is untouched).
         config: settings.
     """
 
-    def __init__(self, scene: Scene, config: IKConfig | None = None):
-        self.scene = scene
+    def __init__(self, robot: RobotKinematics, config: IKConfig | None = None):
+        self.robot = robot
         self.config = config or IKConfig()
-        m = scene.model
+        m = robot.model
         self._configuration = mink.Configuration(m)
         self._posture = mink.PostureTask(m, cost=self.config.posture_cost)
-        arm_dofs = {int(m.jnt_dofadr[j]) for j in scene.arm_joints}
+        arm_dofs = {int(m.jnt_dofadr[j]) for j in robot.arm_joints}
         frozen = [d for d in range(m.nv) if d not in arm_dofs]
         self._constraints = [mink.DofFreezingTask(m, dof_indices=frozen)] if frozen else []
         # no margin inside mink: frozen joints resting on a limit (open fingers at 0) would be infeasible;
@@ -101,7 +99,7 @@ class IKSolver:
         Raises:
             InvalidInputError: the body is not a moving body of the arm, or the inputs are malformed.
         """
-        s, c = self.scene, self.config
+        s, c = self.robot, self.config
         if body not in s.robot_bodies or body == s.base_body:
             raise InvalidInputError(f"body {body} is not a moving body of the arm")
         target_base = np.asarray(target_base, dtype=np.float64).reshape(-1)
@@ -133,5 +131,5 @@ def target_in_view(T_camera_base: FloatArray, intrinsics: CameraIntrinsics, pixe
     """The base-frame point (3,) m seen at pixel (2,) px (undistorted by the camera model) at depth_m along z."""
     uv = normalized_from_pixels(np.asarray(pixel, dtype=np.float64).reshape(1, 2), intrinsics)[0]
     p_cam = np.array([uv[0], uv[1], 1.0]) * depth_m
-    R, t = T_camera_base[:3, :3], T_camera_base[:3, 3]
-    return R.T @ (p_cam - t)
+    R_camera_base, t_camera_base = T_camera_base[:3, :3], T_camera_base[:3, 3]
+    return R_camera_base.T @ (p_cam - t_camera_base)

@@ -10,21 +10,16 @@ with two snapshots). No ground truth is used.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from planners.context import PlanningContext, SceneRenderer
+from planners.errors import PlanningError
 from planners.sampling import check_sampling, random_motion
-from solver.errors import InvalidInputError
+from solver.arrays import FloatArray
 from solver.frames import transform_from_rt
-
-if TYPE_CHECKING:
-    from arc_env.env import ArcCalibEnv
-    from arc_env.scene import Scene
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -58,50 +53,49 @@ class RandomPlannerConfig:
 IMAGE_TEST_DOWNSCALE = 4
 
 
-def image_change(scene: Scene, q: FloatArray, joint: int, delta: float) -> float:
+def image_change(context: PlanningContext, renderer: SceneRenderer, q: FloatArray, joint: int, delta: float) -> float:
     """Fraction of pixels that change (by more than 12 of 255 in some channel) between a sweep's end frames.
 
     The image test a real robot does with two snapshots: renders the sweep (q (n,) rad, joint,
     delta rad) at 0 and delta as thumbnails (``IMAGE_TEST_DOWNSCALE``), then puts the arm back.
     """
-    saved = scene.q
+    saved = context.robot.q
     frames = []
     for d in (0.0, delta):
-        scene.set_swept(q, joint, d)
-        frames.append(scene.render(IMAGE_TEST_DOWNSCALE).astype(np.int16))
-    scene.set_q(saved)
+        swept = q.copy()
+        swept[joint] += d
+        frames.append(renderer.render_at(swept, IMAGE_TEST_DOWNSCALE).astype(np.int16))
+    context.robot.set_q(saved)
     return float((np.abs(frames[0] - frames[1]).max(axis=2) > 12).mean())
 
 
-def prepare_image_test(scene: Scene) -> None:
-    """Create the thumbnail renderer now (about 1 s of GL set-up), so no planning call pays for it."""
-    scene.render(IMAGE_TEST_DOWNSCALE)
-
-
 class RandomPlanner:
-    """Draws random valid, visible exploratory motions for an ``ArcCalibEnv``.
+    """Draws random valid, visible exploratory motions.
 
     Args:
-        env: the environment (its robot model, collision checker and camera image).
-        rng: random generator; None seeds one from the env's ``np_random``.
-        config: settings.
+        context: what the planner reads (robot model, collision checks, the session's limits; an image
+            test when the context has a renderer), e.g. ``env.session``.
+        rng: random generator; None seeds one from the context's ``np_random``.
+        config: settings. Without a renderer in the context, no image test runs (``max_image_tests``
+            is treated as 0): before an estimate exists, motions are not checked for visibility.
     """
 
-    def __init__(self, env: ArcCalibEnv, rng: np.random.Generator | None = None,
+    def __init__(self, context: PlanningContext, rng: np.random.Generator | None = None,
                  config: RandomPlannerConfig | None = None):
-        self.env = env
-        self.rng = rng if rng is not None else np.random.default_rng(env.np_random.integers(2**31 - 1))
+        self.context = context
+        self.rng = rng if rng is not None else np.random.default_rng(context.np_random.integers(2**31 - 1))
         self.config = config or RandomPlannerConfig()
-        if self.config.max_image_tests:
-            prepare_image_test(env.scene)
+        self.renderer = context.renderer if self.config.max_image_tests else None
+        if self.renderer is not None:
+            self.renderer.prepare(IMAGE_TEST_DOWNSCALE)  # about 1 s of GL set-up, paid now
 
     def _sample(self) -> tuple[FloatArray, int, float] | None:
-        c, env = self.config, self.env.config
-        delta_range = (max(c.delta_range[0], env.min_delta), min(c.delta_range[1], env.max_delta))
-        return random_motion(self.env.scene, self.rng, c.limit_margin, delta_range)
+        c, ctx = self.config, self.context
+        delta_range = (max(c.delta_range[0], ctx.min_delta), min(c.delta_range[1], ctx.max_delta))
+        return random_motion(ctx.robot, self.rng, c.limit_margin, delta_range)
 
-    def _in_view_estimate(self, q: FloatArray, joint: int, delta: float, T: FloatArray) -> bool:
-        s, c = self.env.scene, self.config
+    def _in_view_estimate(self, q: FloatArray, joint: int, delta: float, T_camera_base: FloatArray) -> bool:
+        s, c = self.context.robot, self.config
         body, local = s.surface_points(joint)
         if len(body) == 0:
             return False
@@ -111,41 +105,52 @@ class RandomPlanner:
         fractions = []
         for d in (0.0, delta):
             s.set_swept(q, joint, d)
-            _, visible = s.project_points(body, local, T, min_depth=0.1, margin_px=c.image_margin_px)
+            _, visible = s.project_points(body, local, T_camera_base, self.context.intrinsics, min_depth=0.1,
+                                          margin_px=c.image_margin_px)
             fractions.append(visible.mean())
         s.set_q(saved)
         return min(fractions) >= c.min_in_view
 
-    def _in_view_image(self, q: FloatArray, joint: int, delta: float) -> bool:
-        return image_change(self.env.scene, q, joint, delta) >= self.config.min_changed_fraction
+    def _in_view_image(self, renderer: SceneRenderer, q: FloatArray, joint: int, delta: float) -> bool:
+        return image_change(self.context, renderer, q, joint, delta) >= self.config.min_changed_fraction
 
     def plan(self, observation: dict[str, Any]) -> dict[str, Any]:
         """The next motion as an env action {"Q", "J", "delta"}.
 
         Raises:
-            InvalidInputError: no valid, visible motion was found in ``max_tries`` candidates.
+            PlanningError: no valid, visible motion was found in ``max_tries`` candidates.
         """
         c = self.config
-        T = None
-        if int(observation.get("has_estimate", 0)):
-            R = Rotation.from_rotvec(np.asarray(observation["rotation"], dtype=np.float64)).as_matrix()
-            T = transform_from_rt(R, np.asarray(observation["translation"], dtype=np.float64))
+        T_camera_base = estimate_from_observation(observation)
         image_tests = 0
         for _ in range(c.max_tries):
             cand = self._sample()
             if cand is None:
                 continue
             q, joint, delta = cand
-            if self.env.validate(q, joint, delta):
+            if self.context.refusal_reason(q, joint, delta):
                 continue
-            if T is not None:
-                if not self._in_view_estimate(q, joint, delta, T):
+            if T_camera_base is not None:
+                if not self._in_view_estimate(q, joint, delta, T_camera_base):
                     continue
             else:
-                if image_tests >= c.max_image_tests:
-                    return {"Q": q, "J": joint, "delta": np.array([delta])}
+                if self.renderer is None or image_tests >= c.max_image_tests:
+                    return motion_action(q, joint, delta)
                 image_tests += 1
-                if not self._in_view_image(q, joint, delta):
+                if not self._in_view_image(self.renderer, q, joint, delta):
                     continue
-            return {"Q": q, "J": joint, "delta": np.array([delta])}
-        raise InvalidInputError(f"no valid, visible motion in {c.max_tries} random candidates")
+            return motion_action(q, joint, delta)
+        raise PlanningError(f"no valid, visible motion in {c.max_tries} random candidates")
+
+
+def motion_action(q: FloatArray, joint: int, delta: float) -> dict[str, Any]:
+    """The env action {"Q": (n,) rad, "J": joint, "delta": (1,) rad} of a motion."""
+    return {"Q": q, "J": joint, "delta": np.array([delta])}
+
+
+def estimate_from_observation(observation: dict[str, Any]) -> FloatArray | None:
+    """The estimate of ``T_camera_base`` (4, 4) an env observation holds, or None without one."""
+    if not int(observation.get("has_estimate", 0)):
+        return None
+    R_camera_base = Rotation.from_rotvec(np.asarray(observation["rotation"], dtype=np.float64)).as_matrix()
+    return transform_from_rt(R_camera_base, np.asarray(observation["translation"], dtype=np.float64))

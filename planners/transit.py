@@ -18,21 +18,18 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
 
 from planners.collision import CollisionChecker
-from solver.errors import ArcCalibError, InvalidInputError
-
-FloatArray = NDArray[np.float64]
+from planners.errors import TransitError
+from solver.arrays import FloatArray
+from solver.errors import InvalidInputError
 
 ou.setLogLevel(ou.LOG_WARN)
 
-
-class TransitError(ArcCalibError):
-    """No collision-free transit was found (the message says why)."""
+__all__ = ["TransitConfig", "TransitError", "TransitPath", "path_length", "plan_transit"]
 
 
 @dataclass(frozen=True)

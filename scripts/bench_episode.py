@@ -11,7 +11,7 @@ error from geometry error. Prints a table and, with ``--json PATH``, writes
 a checkpoint counts as an infinite error in the medians (printed as inf, written as null).
 ``--quick``: 2 poses x 1 seed at 960x540, 10 motions, for a CI smoke run (at 640x360 the
 speckle falls below a pixel and too few corners survive to calibrate in 10 motions).
-``--store DIR`` keeps every finished episode (``arc_env.episodes``) and reuses it, so a long run can be
+``--store DIR`` keeps every finished episode (``arc_env.bench.episodes``) and reuses it, so a long run can be
 interrupted and resumed; ``--workers N`` runs N episodes at once (one renderer thread each).
 """
 
@@ -22,9 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-import arc_env  # noqa: F401  (chooses the GL backend before MuJoCo loads)
-from arc_env.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M
-from arc_env.episodes import (
+from arc_env.bench.episodes import (
     EpisodeSpec,
     add_runner_arguments,
     commits_used,
@@ -32,6 +30,7 @@ from arc_env.episodes import (
     run_from_arguments,
     write_figures,
 )
+from arc_env.sim.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M
 
 CHECKPOINTS = (3, 10, 25)
 TARGET_25 = (0.001, 0.0015)  # rad, m: issue 3's target for tracked runs at 25 motions

@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-import arc_env  # noqa: F401  (chooses MuJoCo's GL backend)
-from arc_env.calibrate import UsableCriteria, calibrate_recording, unusable_reason
-from arc_env.record import RecordSettings, record_episode
-from arc_env.recording import parse_dist, read_recording
+from arc_env.robot.recording import read_recording
+from arc_env.robot.session import UsableCriteria, calibrate_recording, unusable_reason
+from arc_env.sim.distortion import parse_dist
+from arc_env.sim.record import RecordSettings, record_episode
 from solver.frames import pose_errors
 
 
@@ -31,9 +31,9 @@ def run_one(size: str, seed: int, args: argparse.Namespace, tmp: Path) -> dict:
     dist = tuple(parse_dist(args.dist)) if args.dist else ()
     t0 = time.perf_counter()
     truth = record_episode(RecordSettings(out=out, motions=args.motions, seed=seed, width=width, height=height,
-                                          video=args.video, dist=dist), progress=False)
+                                          video=args.video, dist=dist))
     t1 = time.perf_counter()
-    run = calibrate_recording(read_recording(out), progress=False)
+    run = calibrate_recording(read_recording(out))
     t2 = time.perf_counter()
     s = run.calibrator.state
     row = {"size": size, "seed": seed, "record_s": round(t1 - t0, 1), "calibrate_s": round(t2 - t1, 1),

@@ -21,7 +21,7 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from arc_env.tracking import TrackerConfig, track_keypoints  # noqa: E402
+from arc_env.robot.tracking import TrackerConfig, track_keypoints  # noqa: E402
 
 SIZE = (1080, 1920)
 CENTRE = np.array([900.0, 540.0])

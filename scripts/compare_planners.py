@@ -15,7 +15,7 @@ rotation <= 0.0042 rad and translation <= 6.5 mm; a run reaches it at the first 
 is within both. A run that never does counts as infinitely many motions (null in the JSON when that
 is the median); a motion count without an estimate counts as an infinite error. Planning seconds are per call, on
 one core (``OMP_NUM_THREADS``/BLAS threads are not restricted: set them to 1 for a strict figure).
-``--store DIR`` keeps every finished episode (``arc_env.episodes``) and reuses it, so a long run can be
+``--store DIR`` keeps every finished episode (``arc_env.bench.episodes``) and reuses it, so a long run can be
 interrupted and resumed; ``--workers N`` runs N episodes at once (one renderer thread each).
 """
 
@@ -28,9 +28,7 @@ import cv2
 import numpy as np
 from reproduce_paper import error_plot  # scripts/ is on sys.path when run as a script
 
-import arc_env  # noqa: F401  (chooses the GL backend before MuJoCo loads)
-from arc_env.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M
-from arc_env.episodes import (
+from arc_env.bench.episodes import (
     EpisodeSpec,
     add_runner_arguments,
     commits_used,
@@ -38,6 +36,7 @@ from arc_env.episodes import (
     run_from_arguments,
     write_figures,
 )
+from arc_env.sim.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M
 
 PLANNERS = ("random", "informed")
 

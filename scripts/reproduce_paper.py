@@ -5,8 +5,8 @@ seed (5 by default), at 1920x1080:
 
 * ``random``: ARC-Calib in ``ArcCalib-v0`` with ``RandomPlanner`` (the paper's selection), ``--motions``
   exploratory motions, rendered pixels and optical-flow tracking; the true error after every motion.
-* ``informed``: the same with ``planners.informed_planner.InformedPlanner`` (ours).
-* ``marker``: ``arc_env.marker_baseline``: a ChArUco board on the flange, ``--motions`` board poses,
+* ``informed``: the same with ``planners.informed.InformedPlanner`` (ours).
+* ``marker``: ``arc_env.bench.marker_baseline``: a ChArUco board on the flange, ``--motions`` board poses,
   OpenCV detection + PnP, eye-to-hand by Shah's method; "n motions" = the first n board poses.
 
 Every method sees the same camera pose. A run without an estimate at some n counts as an infinite
@@ -23,7 +23,7 @@ Writes ``OUT/errors.png`` (median error vs number of motions, log scale, with th
 (matplotlib is not a dependency).
 
 ``--quick``: 2 poses x 1 seed at 960x540, 10 motions, 5 IoU configurations (a few minutes).
-``--store DIR`` keeps every finished episode (``arc_env.episodes``) and reuses it, so a long run can be
+``--store DIR`` keeps every finished episode (``arc_env.bench.episodes``) and reuses it, so a long run can be
 interrupted and resumed (and shares runs with ``bench_episode.py`` and ``compare_planners.py``);
 ``--workers N`` runs N episodes at once (one renderer thread each). The IoU study is recomputed.
 """
@@ -36,10 +36,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-import arc_env  # noqa: F401  (chooses the GL backend before MuJoCo loads)
-from arc_env.demo import mask_iou
-from arc_env.env import ArcCalibEnv, EnvConfig, benchmark_camera_pose
-from arc_env.episodes import (
+from arc_env.bench.episodes import (
     METHODS,
     EpisodeSpec,
     add_runner_arguments,
@@ -48,7 +45,10 @@ from arc_env.episodes import (
     run_from_arguments,
     write_figures,
 )
-from arc_env.scene import SceneConfig
+from arc_env.bench.poses import benchmark_camera_pose
+from arc_env.robot.overlay import mask_iou
+from arc_env.sim.env import ArcCalibEnv, EnvConfig
+from arc_env.sim.scene import SceneConfig
 
 CHECKPOINTS = (3, 10, 25)
 #: The paper's simulation figures (§VI-A, mean over 10 poses x 5 runs, random selection): n -> (rad, m).
@@ -65,22 +65,22 @@ def iou_study(pose: int, seed: int, estimates: dict[str, np.ndarray | None], arg
     try:
         env.reset(seed=1000 * pose + seed,
                   options={"camera_pose": benchmark_camera_pose(pose, env.config.camera_target)})
-        s = env.scene
+        s, robot = env.scene, env.scene.robot
         rng = np.random.default_rng(5000 + 1000 * pose + seed)
         ious: dict[str, list[float]] = {m: [] for m in estimates}
         min_pixels = 0.002 * s.intrinsics.width * s.intrinsics.height
         for _ in range(200 * args.iou_configs):
             if all(len(v) >= args.iou_configs for v in ious.values()):
                 break
-            q = rng.uniform(s.lower, s.upper)
-            if env.checker.in_collision(q)[0]:
+            q = rng.uniform(robot.lower, robot.upper)
+            if env.session.checker.in_collision(q)[0]:
                 continue
-            s.set_q(q)
+            robot.set_q(q)
             true = s.robot_mask()
             if true.sum() < min_pixels:
                 continue
-            for m, T in estimates.items():
-                ious[m].append(0.0 if T is None else mask_iou(s.robot_mask(T), true))
+            for m, T_camera_base in estimates.items():
+                ious[m].append(0.0 if T_camera_base is None else mask_iou(s.robot_mask(T_camera_base), true))
     finally:
         env.close()
     return {m: float(np.mean(v)) if v else float("nan") for m, v in ious.items()}

@@ -20,10 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from solver.arrays import FloatArray
 from solver.errors import InsufficientMotionsError, InvalidInputError, UnobservablePoseError
 from solver.frames import project_to_so3, skew, transform_from_rt
-
-FloatArray = NDArray[np.float64]
 
 #: Fewest motions for a pose: three planes fix t, and two non-parallel axes fix R.
 MIN_MOTIONS = 3

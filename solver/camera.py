@@ -10,9 +10,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from solver.arrays import FloatArray
 from solver.observations import CameraIntrinsics
-
-FloatArray = NDArray[np.float64]
 
 
 def normalized_from_pixels(pixels: FloatArray, intrinsics: CameraIntrinsics) -> FloatArray:

@@ -10,11 +10,9 @@ with the observed order of points (increasing delta) is kept, leaving two candid
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 
+from solver.arrays import FloatArray
 from solver.errors import DegenerateTrajectoryError
-
-FloatArray = NDArray[np.float64]
 
 
 def plane_orientations(Q: FloatArray) -> FloatArray:

@@ -23,11 +23,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from solver.arrays import FloatArray
 from solver.errors import DegenerateTrajectoryError, InvalidInputError
-
-FloatArray = NDArray[np.float64]
 
 #: Smallest ellipticity 4AC - B^2, relative to (A + C)^2, accepted as an ellipse. An ellipse with
 #: axis ratio b/a has 4AC - B^2 = 4 (b/a)^2 / (1 + (b/a)^2)^2 (A + C)^2 = 0.04 at b/a ~ 0.1: flatter

@@ -6,12 +6,10 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from solver.arrays import FloatArray
 from solver.errors import InvalidInputError
 from solver.frames import pose_difference
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

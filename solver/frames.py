@@ -10,12 +10,10 @@
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from solver.arrays import FloatArray
 from solver.errors import InvalidInputError
-
-FloatArray = NDArray[np.float64]
 
 
 def transform_from_rt(R: FloatArray, t: FloatArray) -> FloatArray:

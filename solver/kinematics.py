@@ -11,11 +11,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from solver.arrays import FloatArray
 from solver.errors import InvalidInputError
-
-FloatArray = NDArray[np.float64]
 
 #: Gamma(q, joint) -> (axis_base (3,) unit, point_base (3,) metres) for a 0-based joint index.
 AxisFunction = Callable[[FloatArray, int], tuple[FloatArray, FloatArray]]

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from solver.arrays import FloatArray
 from solver.camera import normalized_from_pixels, rays_from_normalized
 from solver.circle_normals import axis_candidates
 from solver.conics import fit_conics_independent, fit_conics_shared
@@ -34,7 +35,6 @@ from solver.reference_lines import (
     project_to_plane,
 )
 
-FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 

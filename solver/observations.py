@@ -9,11 +9,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from solver.arrays import FloatArray
 from solver.errors import InvalidInputError
-
-FloatArray = NDArray[np.float64]
 
 
 def _finite(name: str, array: FloatArray) -> None:

@@ -17,6 +17,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from solver.arrays import FloatArray
 from solver.calibration import AxisCorrespondence, ConsensusResult, solve_consensus
 from solver.camera import normalized_from_pixels
 from solver.convergence import ConvergenceConfig, ConvergenceMonitor
@@ -32,7 +33,6 @@ from solver.motion import MotionConfig, MotionGeometry, estimate_motion_geometry
 from solver.observations import CameraIntrinsics, MotionObservation
 from solver.refinement import RefinementConfig, RefinementResult, build_track_set, refine
 
-FloatArray = NDArray[np.float64]
 Stage = Literal["none", "linear", "refined"]
 
 

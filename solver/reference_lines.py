@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from solver.arrays import FloatArray
+
 IntArray = NDArray[np.int64]
 
 

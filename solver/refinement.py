@@ -24,10 +24,10 @@ from scipy.linalg import eigh
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from solver.arrays import FloatArray
 from solver.errors import InsufficientMotionsError, InvalidInputError
 from solver.frames import perturb, rotation_about_axis, skew
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 

@@ -12,13 +12,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from solver.arrays import FloatArray
 from solver.camera import in_image, pixels_from_camera_points
 from solver.errors import InvalidInputError
 from solver.frames import transform_from_rt
 from solver.kinematics import DHChain
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
-
-FloatArray = NDArray[np.float64]
 
 
 def d415_intrinsics(width: int = 1920, height: int = 1080) -> CameraIntrinsics:

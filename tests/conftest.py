@@ -1,3 +1,2 @@
-"""Session-wide set-up: MuJoCo's offscreen GL backend is chosen before any test module imports mujoco."""
-
-import arc_env  # noqa: F401  (sets MUJOCO_GL; mujoco reads it at import)
+"""Session-wide set-up: nothing to do. The GL backend is chosen when a renderer is created
+(``arc_env.sim.rendering``), so the test modules may import MuJoCo in any order."""

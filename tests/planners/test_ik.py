@@ -6,8 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-import arc_env  # noqa: F401  (GL backend before MuJoCo)
-from arc_env.scene import Scene, SceneConfig
+from arc_env.sim.scene import Scene, SceneConfig
 from planners.ik import IKConfig, IKSolver, target_in_view
 from solver import d415_intrinsics, look_at
 from solver.errors import InvalidInputError
@@ -25,35 +24,35 @@ def scene():
 
 @pytest.mark.parametrize("target", TARGETS)
 def test_last_link_reaches_the_target(scene, target):
-    ik = IKSolver(scene)
-    tip = int(scene.model.jnt_bodyid[scene.arm_joints[-1]])
-    seed = np.random.default_rng(1).uniform(scene.lower, scene.upper)
+    ik = IKSolver(scene.robot)
+    tip = int(scene.model.jnt_bodyid[scene.robot.arm_joints[-1]])
+    seed = np.random.default_rng(1).uniform(scene.robot.lower, scene.robot.upper)
     result = ik.solve(tip, np.array(target), seed)
     assert result.reached
-    assert np.all(result.q >= scene.lower) and np.all(result.q <= scene.upper)
-    before = scene.q
-    scene.set_q(result.q)
-    reached = scene.points_base(np.array([tip]), np.zeros((1, 3)))[0]  # MuJoCo's forward kinematics
-    scene.set_q(before)
+    assert np.all(result.q >= scene.robot.lower) and np.all(result.q <= scene.robot.upper)
+    before = scene.robot.q
+    scene.robot.set_q(result.q)
+    reached = scene.robot.points_base(np.array([tip]), np.zeros((1, 3)))[0]  # MuJoCo's forward kinematics
+    scene.robot.set_q(before)
     assert np.linalg.norm(reached - np.array(target)) <= IKConfig().tolerance_m
     assert result.error_m == pytest.approx(np.linalg.norm(reached - np.array(target)), abs=1e-6)
 
 
 def test_unreachable_target_is_reported_not_reached(scene):
-    ik = IKSolver(scene, IKConfig(max_iterations=40))
-    tip = int(scene.model.jnt_bodyid[scene.arm_joints[-1]])
-    result = ik.solve(tip, np.array([2.0, 0.0, 0.5]), scene.home)  # 2 m away: beyond the arm's reach
+    ik = IKSolver(scene.robot, IKConfig(max_iterations=40))
+    tip = int(scene.model.jnt_bodyid[scene.robot.arm_joints[-1]])
+    result = ik.solve(tip, np.array([2.0, 0.0, 0.5]), scene.robot.home)  # 2 m away: beyond the arm's reach
     assert not result.reached and result.error_m > 0.5
-    assert np.all(result.q >= scene.lower) and np.all(result.q <= scene.upper)
+    assert np.all(result.q >= scene.robot.lower) and np.all(result.q <= scene.robot.upper)
 
 
 def test_bad_body_and_target_are_refused(scene):
-    ik = IKSolver(scene)
+    ik = IKSolver(scene.robot)
     with pytest.raises(InvalidInputError, match="not a moving body"):
-        ik.solve(scene.base_body, np.zeros(3), scene.home)
-    tip = int(scene.model.jnt_bodyid[scene.arm_joints[-1]])
+        ik.solve(scene.robot.base_body, np.zeros(3), scene.robot.home)
+    tip = int(scene.model.jnt_bodyid[scene.robot.arm_joints[-1]])
     with pytest.raises(InvalidInputError, match="finite"):
-        ik.solve(tip, np.array([np.nan, 0.0, 0.5]), scene.home)
+        ik.solve(tip, np.array([np.nan, 0.0, 0.5]), scene.robot.home)
 
 
 def test_target_in_view_projects_back_to_its_pixel():

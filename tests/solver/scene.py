@@ -7,10 +7,9 @@ projected with numpy, so the tests compare the solver against a separate constru
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-FloatArray = NDArray[np.float64]
+from solver.arrays import FloatArray
 
 #: The house test camera: 1920x1080, fx = fy = 1380 px, principal point at the image centre.
 WIDTH, HEIGHT = 1920, 1080

@@ -1,0 +1,328 @@
+"""Benchmark episodes: one runner for every study script, and a store that makes long studies resumable.
+
+``scripts/bench_episode.py`` (tracked and oracle runs of random motions), ``scripts/compare_planners.py``
+(random against informed) and ``scripts/reproduce_paper.py`` (random, informed and the marker
+baseline) all run the same kind of episode: the benchmarks' fixed camera pose ``pose``, the env
+seeded with ``1000 * pose + seed`` and the planner's generator with the same number, a budget of
+``motions`` executed motions. An :class:`EpisodeSpec` names one; :func:`run_episode` runs it and
+returns a plain JSON-able record; :func:`run_episodes` runs many, in worker processes if asked, and
+with an :class:`EpisodeStore` keeps every finished record on disk so that a study interrupted after
+hours continues where it stopped, and so that the three scripts share runs they have in common (the
+random tracked run at 1080p is the same episode in all three).
+
+A record (``dict``):
+
+* ``spec``: the :class:`EpisodeSpec` as a dict; ``commit``: the code it ran on (``git describe``,
+  "-dirty" when the tree had changes), so mixed-version results can be seen;
+* ``curve``: per executed motion (or, for ``marker``, per board pose) ``[rot_rad, trans_m]`` true
+  error of the estimate after it, ``null`` while there is no estimate;
+* ``planning``: seconds of every planning call; ``seconds``: totals of ``render``, ``tracking``,
+  ``solver``, ``transit``, ``planning`` and the whole episode (``total``); ``frames``: rendered frames;
+* ``converged_at``: first motion (1-based) after which the convergence monitor fired, or ``null``;
+* ``refused``: actions the env refused; ``in_collision``: executed sweeps and transits that a 2 mm
+  re-check finds colliding (must be 0);
+* ``T_camera_base``: the final estimate (4x4 nested lists) or ``null``; ``note``: why it stopped early.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import subprocess
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from solver.errors import ArcCalibError, InvalidInputError
+
+#: Selection methods an episode can use: ARC-Calib with either planner, or the marker baseline.
+METHODS = ("random", "informed", "marker")
+#: Re-check resolution for executed sweeps and transits, m (finer than the env's own check).
+RECHECK_STEP_M = 0.002
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """One benchmark episode.
+
+    Attributes:
+        method: "random", "informed" (ARC-Calib with that planner) or "marker" (the baseline).
+        pose: index of the benchmarks' fixed camera pose (``arc_env.bench.poses.benchmark_camera_pose``).
+        seed: run index at that pose; the env and planner are seeded with ``1000 * pose + seed``.
+        motions: executed motions (board poses for "marker") in the episode.
+        width: image width, px.
+        height: image height, px.
+        oracle: projected mesh points instead of rendering and tracking (ARC-Calib methods only).
+    """
+
+    method: str
+    pose: int
+    seed: int
+    motions: int = 25
+    width: int = 1920
+    height: int = 1080
+    oracle: bool = False
+
+    def __post_init__(self) -> None:
+        """Check the fields."""
+        if self.method not in METHODS:
+            raise InvalidInputError(f"unknown method {self.method!r}; valid: {', '.join(METHODS)}")
+        if self.oracle and self.method == "marker":
+            raise InvalidInputError("the marker baseline has no oracle mode")
+        if self.pose < 0 or self.seed < 0 or self.motions < 1 or self.width < 1 or self.height < 1:
+            raise InvalidInputError(f"invalid episode {self}")
+
+    @property
+    def key(self) -> str:
+        """File-name-safe identity, e.g. ``random_1920x1080_m25_p3_s1``."""
+        mode = "-oracle" if self.oracle else ""
+        return f"{self.method}{mode}_{self.width}x{self.height}_m{self.motions}_p{self.pose}_s{self.seed}"
+
+    @property
+    def rng_seed(self) -> int:
+        """The number both the env and the planner are seeded with."""
+        return 1000 * self.pose + self.seed
+
+
+def code_version() -> str:
+    """``git describe --always --dirty`` of this checkout, or "unknown" outside git."""
+    try:
+        out = subprocess.run(["git", "describe", "--always", "--dirty"], cwd=Path(__file__).resolve().parent,
+                             capture_output=True, text=True, timeout=10, check=True)
+        return out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def _error_pair(rot: float | None, trans: float | None) -> list[float] | None:
+    return None if rot is None or trans is None else [float(rot), float(trans)]
+
+
+def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
+    """Run one episode and return its record (see the module doc)."""
+    if spec.method == "marker":
+        return _run_marker(spec)
+    return _run_arc(spec)
+
+
+def _make_env(spec: EpisodeSpec, board: bool = False):  # noqa: ANN202  (ArcCalibEnv; imported lazily)
+    from arc_env.bench.poses import benchmark_camera_pose
+    from arc_env.sim.env import ArcCalibEnv, EnvConfig
+    from arc_env.sim.marker_board import MarkerBoard
+    from arc_env.sim.scene import SceneConfig
+
+    config = EnvConfig(scene=SceneConfig(width=spec.width, height=spec.height,
+                                         marker_board=MarkerBoard() if board else None),
+                       max_motions=spec.motions, oracle_keypoints=spec.oracle, terminate_on_convergence=False)
+    env = ArcCalibEnv(config)
+    obs, _ = env.reset(seed=spec.rng_seed,
+                       options={"camera_pose": benchmark_camera_pose(spec.pose, config.camera_target)})
+    return env, obs
+
+
+def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
+    from planners.informed import InformedPlanner
+    from planners.random_planner import RandomPlanner
+
+    started = time.perf_counter()
+    seconds = dict.fromkeys(("render", "tracking", "solver", "transit", "planning"), 0.0)
+    record: dict[str, Any] = {"spec": asdict(spec), "commit": code_version(), "curve": [], "planning": [],
+                              "frames": 0, "converged_at": None, "refused": 0, "in_collision": 0,
+                              "T_camera_base": None, "note": ""}
+    env, obs = _make_env(spec)
+    try:
+        planner_cls = RandomPlanner if spec.method == "random" else InformedPlanner
+        planner = planner_cls(env.session, np.random.default_rng(spec.rng_seed))
+        while len(record["curve"]) < spec.motions:
+            t0 = time.perf_counter()
+            try:
+                action = planner.plan(obs)
+            except ArcCalibError as exc:
+                record["note"] = f"planner stopped after {len(record['curve'])} motions: {exc}"
+                break
+            record["planning"].append(time.perf_counter() - t0)
+            obs, _, _, truncated, info = env.step(action)
+            if info["refused"]:
+                record["refused"] += 1
+                if truncated:
+                    record["note"] = f"{info['n_refused']} refused actions"
+                    break
+                continue
+            for part, value in env.last_seconds.items():
+                seconds[part] = seconds.get(part, 0.0) + value
+            record["frames"] += int(info.get("n_frames", 0))
+            session = env.session
+            q, joint, delta = session.executed[-1]
+            assert session.last_transit is not None
+            free, _ = session.checker.sweep_free(q, joint, delta, RECHECK_STEP_M)
+            path = session.last_transit.waypoints
+            free = free and all(session.checker.path_free(a, b, RECHECK_STEP_M)[0]
+                                for a, b in zip(path[:-1], path[1:], strict=True))
+            record["in_collision"] += int(not free)
+            record["curve"].append(_error_pair(info["rot_error_rad"], info["trans_error_m"]))
+            if obs["converged"] and record["converged_at"] is None:
+                record["converged_at"] = len(record["curve"])
+            if info["T_camera_base"] is not None:
+                record["T_camera_base"] = np.asarray(info["T_camera_base"]).tolist()
+    finally:
+        env.close()
+    seconds["planning"] = float(sum(record["planning"]))
+    seconds["total"] = time.perf_counter() - started
+    record["seconds"] = seconds
+    return record
+
+
+def _run_marker(spec: EpisodeSpec) -> dict[str, Any]:
+    from arc_env.bench.marker_baseline import MarkerBaseline
+
+    started = time.perf_counter()
+    env, _ = _make_env(spec, board=True)
+    try:
+        baseline = MarkerBaseline(env, np.random.default_rng(spec.rng_seed))
+        run = baseline.run(spec.motions)
+        curve = [None if e is None else _error_pair(*e) for e in baseline.errors(run)]
+        note = (f"{len(run.views)} views, {run.rejected} rejected"
+                if run.rejected or len(curve) < spec.motions else "")
+        T_camera_base = run.T_camera_base
+    finally:
+        env.close()
+    return {"spec": asdict(spec), "commit": code_version(), "curve": curve, "planning": [], "frames": 0,
+            "converged_at": None, "refused": 0, "in_collision": 0,
+            "T_camera_base": None if T_camera_base is None else np.asarray(T_camera_base).tolist(), "note": note,
+            "seconds": {"total": time.perf_counter() - started}}
+
+
+def padded_curve(record: dict[str, Any], n: int) -> list[tuple[float, float]]:
+    """The record's errors after 1..n motions; no estimate is (inf, inf); after the last motion it stays."""
+    curve = [(np.inf, np.inf) if e is None else (float(e[0]), float(e[1])) for e in record["curve"][:n]]
+    last = curve[-1] if curve else (np.inf, np.inf)
+    return curve + [last] * (n - len(curve))
+
+
+def commits_used(records: Iterable[dict[str, Any]]) -> str:
+    """Which code versions the records came from, e.g. "abc1234 (50 runs)"; more than one is worth a look."""
+    counts: dict[str, int] = {}
+    for r in records:
+        counts[r["commit"]] = counts.get(r["commit"], 0) + 1
+    return ", ".join(f"{c} ({n} runs)" for c, n in sorted(counts.items()))
+
+
+class EpisodeStore:
+    """Finished episode records as one JSON file per :attr:`EpisodeSpec.key` under ``root``."""
+
+    def __init__(self, root: Path | str) -> None:
+        """Use (and create) the directory ``root``."""
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+
+    def path(self, spec: EpisodeSpec) -> Path:
+        """Where ``spec``'s record lives."""
+        return self.root / f"{spec.key}.json"
+
+    def get(self, spec: EpisodeSpec) -> dict[str, Any] | None:
+        """The stored record of ``spec``, or None (also for an unreadable or foreign file)."""
+        path = self.path(spec)
+        try:
+            record = json.loads(path.read_text())
+        except (OSError, ValueError):
+            return None
+        return record if isinstance(record, dict) and record.get("spec") == asdict(spec) else None
+
+    def put(self, record: dict[str, Any]) -> None:
+        """Store a record (atomically: a temporary file renamed into place)."""
+        path = self.path(EpisodeSpec(**record["spec"]))
+        tmp = path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(record))
+        os.replace(tmp, path)
+
+
+#: Threads per worker process (renderer and BLAS) when episodes run in parallel.
+_WORKER_THREADS = {"LP_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+                   "MKL_NUM_THREADS": "1"}
+
+
+def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None, workers: int = 1,
+                 on_record: Callable[[dict[str, Any], bool], None] | None = None) -> dict[EpisodeSpec, dict[str, Any]]:
+    """Run every spec not already in ``store``; returns all records by spec.
+
+    Args:
+        specs: the episodes.
+        store: where finished records are kept and looked up; None runs everything.
+        workers: processes running episodes at once (1: in this process). With more than one, each
+            worker's renderer and BLAS use one thread.
+        on_record: called as ``on_record(record, from_store)`` as each record becomes available
+            (stored ones first, then in order of completion).
+    """
+    if workers < 1:
+        raise InvalidInputError(f"workers must be >= 1, got {workers}")
+    specs = list(dict.fromkeys(specs))
+    records: dict[EpisodeSpec, dict[str, Any]] = {}
+    todo = []
+    for spec in specs:
+        found = store.get(spec) if store is not None else None
+        if found is None:
+            todo.append(spec)
+            continue
+        records[spec] = found
+        if on_record:
+            on_record(found, True)
+
+    def finish(record: dict[str, Any]) -> None:
+        records[EpisodeSpec(**record["spec"])] = record
+        if store is not None:
+            store.put(record)
+        if on_record:
+            on_record(record, False)
+
+    if workers == 1 or len(todo) <= 1:
+        for spec in todo:
+            finish(run_episode(spec))
+    else:
+        saved = {k: os.environ.get(k) for k in _WORKER_THREADS}
+        os.environ.update(_WORKER_THREADS)  # inherited by the spawned workers
+        try:
+            with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+                futures = [pool.submit(run_episode, spec) for spec in todo]
+                for future in as_completed(futures):
+                    finish(future.result())
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+    return {spec: records[spec] for spec in specs}
+
+
+def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
+    """The study scripts' ``--workers N`` and ``--store DIR`` (read back by :func:`run_from_arguments`)."""
+    parser.add_argument("--workers", type=int, default=1, help="episodes run in parallel processes (default 1)")
+    parser.add_argument("--store", type=Path, help="keep finished episodes here and reuse them (resumable runs, "
+                        "shared by bench_episode.py, compare_planners.py and reproduce_paper.py)")
+
+
+def run_from_arguments(specs: Iterable[EpisodeSpec], args: argparse.Namespace,
+                       on_record: Callable[[dict[str, Any], bool], None] | None = None
+                       ) -> dict[EpisodeSpec, dict[str, Any]]:
+    """:func:`run_episodes` with the store and workers that :func:`add_runner_arguments` parsed."""
+    return run_episodes(specs, EpisodeStore(args.store) if args.store else None, args.workers, on_record)
+
+
+def write_figures(path: Path, figures: dict[str, Any]) -> None:
+    """Write a study's ``--json`` document; infinite or NaN figures become null."""
+    def clean(x: Any) -> Any:
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, float):
+            return x if np.isfinite(x) else None
+        return x
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(clean(figures), indent=2))

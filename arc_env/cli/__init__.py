@@ -1,0 +1,108 @@
+"""The ``arc-calib`` command: one module per subcommand.
+
+* ``demo`` (``arc_env.cli.demo``): one calibration episode in the MuJoCo scene (default: the Franka
+  Panda, 1920x1080 D415-like camera at a random pose), narrated motion by motion; ``--synthetic``: the
+  solver alone on synthetic keypoints, without rendering.
+* ``record`` (``arc_env.cli.record``): a simulated episode written as a recording.
+* ``calibrate`` (``arc_env.cli.calibrate``): a recording in, a calibration and ROS exports out (no simulator).
+* ``run`` (``arc_env.cli.run``): online calibration, a planner driving a ``RobotDriver``.
+
+Each subcommand's module is imported only when it runs, so ``calibrate`` never imports the simulator.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from solver.errors import ArcCalibError, InvalidInputError
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``arc-calib`` console script."""
+    parser = argparse.ArgumentParser(prog="arc-calib", description="Markerless camera-to-robot calibration.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    demo = sub.add_parser("demo", help="run one calibration episode")
+    demo.add_argument("--synthetic", action="store_true",
+                      help="synthetic Panda kinematics and keypoints, no rendering (solver only)")
+    demo.add_argument("--motions", type=int, default=25, help="motion budget (default 25)")
+    demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    demo.add_argument("--robot", help="robot MJCF or URDF file (default: the gymnasium-robotics Panda)")
+    demo.add_argument("--base-body", help="the robot's base body (required with --robot)")
+    demo.add_argument("--width", type=int, default=1920, help="image width, px (default 1920)")
+    demo.add_argument("--height", type=int, default=1080, help="image height, px (default 1080)")
+    demo.add_argument("--oracle", action="store_true",
+                      help="projected mesh points instead of rendering and tracking (simulation floor)")
+    demo.add_argument("--overlay", metavar="PATH",
+                      help="write a PNG of the robot mask rendered with the estimate over a real frame, "
+                           "with the IoU against the true mask")
+    demo.add_argument("--noise", type=float, default=0.5,
+                      help="keypoint noise, px (--synthetic and --oracle; default 0.5)")
+    demo.add_argument("--outliers", type=float, default=0.1, help="fraction of bad tracks (--synthetic; default 0.1)")
+    demo.add_argument("--stop-when-converged", action="store_true", help="stop at convergence")
+    demo.add_argument("--planner", choices=("random", "informed"), default="random",
+                      help="motion selection: random (the paper) or informed (ours; default random)")
+    record = sub.add_parser("record", help="simulate an episode and write it as a recording (docs/recording-format.md)")
+    record.add_argument("--out", required=True, metavar="DIR",
+                        help="the recording directory to create; the ground truth goes to DIR.ground_truth.json")
+    record.add_argument("--motions", type=int, default=12, help="motions (default 12)")
+    record.add_argument("--seed", type=int, default=0, help="random seed: camera pose and motions (default 0)")
+    record.add_argument("--width", type=int, default=1920, help="image width, px (default 1920)")
+    record.add_argument("--height", type=int, default=1080, help="image height, px (default 1080)")
+    record.add_argument("--fx", type=float, help="focal length, px (default 1380 scaled with the width)")
+    record.add_argument("--dist", metavar="K1,K2,P1,P2[,K3]",
+                        help="simulate a camera with this OpenCV distortion (frames are distorted pinhole renders)")
+    record.add_argument("--video", action="store_true", help="one MP4 per motion instead of PNG frames")
+    record.add_argument("--fps", type=float, default=30.0,
+                        help="frame rate, Hz; joints turn at 1 rad/s (default 30)")
+    record.add_argument("--robot", help="robot MJCF or URDF file (default: the gymnasium-robotics Panda)")
+    record.add_argument("--base-body", help="the robot's base body (required with --robot)")
+    calibrate = sub.add_parser("calibrate", help="calibrate from a recording; write the result and ROS exports")
+    from arc_env.cli.calibrate import add_arguments
+    from arc_env.cli.result import add_result_arguments
+
+    add_arguments(calibrate)
+    run = sub.add_parser("run", help="calibrate online: a planner drives a robot through a driver")
+    run.add_argument("--driver", required=True, metavar="MODULE:CLASS",
+                     help="a RobotDriver class or factory (docs/driver.md), e.g. arc_env.sim.driver:SimulatedDriver")
+    run.add_argument("--motions", type=int, default=25, help="motion budget (default 25)")
+    run.add_argument("--seed", type=int, default=0, help="planner seed (default 0)")
+    run.add_argument("--planner", choices=("random", "informed"), default="random",
+                     help="motion selection (default random, the paper's); informed scores candidates by the "
+                          "information they add (no image test: the twin has no camera image)")
+    run.add_argument("--all-motions", action="store_true", help="do not stop at convergence")
+    run.add_argument("--record", metavar="DIR", help="also save the sweeps as a recording in DIR")
+    add_result_arguments(run)
+    args = parser.parse_args(argv)
+    if args.command == "demo" and args.synthetic and args.planner != "random":
+        print("arc-calib: --planner informed needs the MuJoCo scene (drop --synthetic)", file=sys.stderr)
+        return 2
+    try:
+        if args.command == "demo":
+            from arc_env.cli.demo import run_demo, run_synthetic
+
+            return run_synthetic(args) if args.synthetic else run_demo(args)
+        if args.command == "record":
+            from arc_env.cli.record import run_record
+
+            return run_record(args)
+        if args.command == "run":
+            from arc_env.cli.run import run_online
+
+            return run_online(args)
+        from arc_env.cli.calibrate import run_calibrate
+
+        return run_calibrate(args)
+    except InvalidInputError as exc:
+        print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
+        return 2 if args.command in ("calibrate", "record", "run") else 1
+    except ArcCalibError as exc:
+        print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,36 @@
+"""``arc-calib record``: a simulated episode written as a recording (``arc_env.sim.record``)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from arc_env.cli.progress import Progress
+from arc_env.robot.model import RobotSource
+from arc_env.sim.distortion import parse_dist
+from arc_env.sim.record import RecordSettings, ground_truth_path, record_episode
+from solver.errors import InvalidInputError
+
+
+def run_record(args: argparse.Namespace) -> int:
+    """``arc-calib record`` from parsed arguments; returns the exit code."""
+    if args.robot and not args.base_body:
+        raise InvalidInputError("--robot needs --base-body (the body whose frame is the robot's base)")
+    robot = RobotSource(path=args.robot, base_body=args.base_body, home=()) if args.robot else RobotSource()
+    dist = tuple(parse_dist(args.dist)) if args.dist else ()
+    settings = RecordSettings(out=Path(args.out), motions=args.motions, seed=args.seed, width=args.width,
+                              height=args.height, fx=args.fx, dist=dist, video=args.video, fps=args.fps,
+                              robot=robot)
+    started = time.perf_counter()
+    with Progress(settings.motions, "motions recorded") as bar:
+        truth = record_episode(settings, on_motion=bar.step)
+    print(f"wrote {settings.out} ({settings.motions} motions, {settings.width}x{settings.height}, "
+          f"{'MP4' if settings.video else 'PNG'}{', distorted' if dist else ''}) in "
+          f"{time.perf_counter() - started:.1f} s")
+    print(f"ground truth (not part of the recording): {ground_truth_path(settings.out)}")
+    np.set_printoptions(precision=5, suppress=True)
+    print(f"T_camera_base (true):\n{np.asarray(truth['T_camera_base'])}")
+    return 0

@@ -1,0 +1,129 @@
+"""``arc-calib run --driver module:Class``: calibrate online, a planner (random or informed) driving a ``RobotDriver``.
+
+The driver's robot model (``arc_env.robot.model.RobotModel``, with a collision-only ground plane) is the
+planner's context through a ``CalibrationSession``: motions must be within the limits (the model's and
+the driver's) and collision-free over the whole sweep; once an estimate exists the moving links must
+also stay in view. Before the first estimate, motions are not checked for visibility (there is no image
+to test), so the first few may miss the camera and be pruned. The driver executes each motion, its
+frames are tracked and the calibrator updated; the episode ends on convergence or after ``--motions``.
+The result is written like ``arc-calib calibrate``'s, and ``--record DIR`` also saves the sweeps as a
+recording.
+
+The informed planner predicts occlusion from depth images; here they are drawn by the simulator's
+renderer of the same robot model (created only if the informed planner asks for one), so a real robot's
+``run`` needs an offscreen GL backend only with ``--planner informed``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from arc_env.cli.progress import Progress
+from arc_env.cli.result import check_output, finish
+from arc_env.robot.driver import Sweep, load_driver
+from arc_env.robot.recording import RecordingWriter
+from arc_env.robot.session import (
+    CalibrationRun,
+    CalibrationSession,
+    MotionDiagnostic,
+    SessionConfig,
+    copy_report,
+    driver_session,
+    estimate_status,
+)
+from arc_env.sim.twin import TwinRenderer
+from planners.errors import PlanningError
+from planners.informed import InformedPlanner, InformedPlannerConfig
+from planners.random_planner import RandomPlanner, RandomPlannerConfig
+from solver.arrays import FloatArray
+from solver.errors import ArcCalibError, InvalidInputError
+
+
+def run_online(args: argparse.Namespace) -> int:
+    """``arc-calib run`` from parsed arguments; returns the exit code (0 only for a usable result)."""
+    check_output(Path(args.output))
+    if args.motions < 3:
+        raise InvalidInputError("--motions must be >= 3")
+    driver = load_driver(args.driver)
+    writer: RecordingWriter | None = None
+    if args.record:
+        writer = RecordingWriter(Path(args.record), driver.intrinsics, driver.robot)
+
+    def on_sweep(index: int, q_start: FloatArray, joint: int, sweep: Sweep) -> None:
+        if writer is not None:
+            writer.add_motion(driver.joint_names, sweep.positions, sweep.frames)
+
+    started = time.perf_counter()
+    informed = getattr(args, "planner", "random") == "informed"
+    session = driver_session(driver, SessionConfig(), on_sweep)
+    renderer = TwinRenderer(session.robot, driver.intrinsics) if informed else None
+    session.renderer = renderer
+    try:
+        session.reset(np.random.default_rng(args.seed))
+        calibrator = session.calibrator
+        assert calibrator is not None
+        # there is no camera image to test before an estimate, so neither planner runs its image test
+        rng = np.random.default_rng(args.seed)
+        planner = (InformedPlanner(session, rng, InformedPlannerConfig(bootstrap_image_tests=0)) if informed
+                   else RandomPlanner(session, rng, RandomPlannerConfig(max_image_tests=0)))
+        diagnostics: list[MotionDiagnostic] = []
+        seconds = {"robot": 0.0, "tracking": 0.0, "solver": 0.0}
+        obs = observation(session)
+        with Progress(args.motions, "motions", enabled=not args.quiet) as bar:
+            while session.n_motions < args.motions:
+                try:
+                    action = planner.plan(obs)
+                except PlanningError as exc:
+                    bar.clear()
+                    print(f"the planner found no motion: {exc}", file=sys.stderr)
+                    break
+                result = session.step(np.asarray(action["Q"], dtype=np.float64), int(action["J"]),
+                                      float(action["delta"][0]))
+                if result.refused:
+                    raise ArcCalibError(f"the session refused the planner's motion: {result.refused}")
+                assert result.motion is not None
+                m = result.motion
+                for key, part in (("robot", "render"), ("tracking", "tracking"), ("solver", "solver")):
+                    seconds[key] += result.seconds.get(part, 0.0)
+                name = driver.joint_names[m.joint]
+                diagnostics.append(MotionDiagnostic(f"{len(diagnostics):03d}", name, result.n_frames, m.n_tracks))
+                s = calibrator.state
+                bar.step(f"joint {name}, {result.n_frames} frames, {m.n_tracks} tracks; "
+                         f"{estimate_status(s)}{' [converged]' if s.converged else ''}")
+                obs = observation(session)
+                if s.converged and not args.all_motions:
+                    break
+        for report, diag in zip(calibrator.reports, diagnostics, strict=True):
+            copy_report(report, diag)
+        if writer is not None:
+            writer.close()
+            writer = None
+            print(f"recorded the sweeps to {args.record}", file=sys.stderr)
+    finally:
+        if writer is not None:
+            writer.abort()
+        if renderer is not None:
+            renderer.close()
+        close = getattr(driver, "close", None)
+        if callable(close):
+            close()
+    run = CalibrationRun(f"driver {args.driver}", calibrator, diagnostics,
+                         {**seconds, "total": time.perf_counter() - started})
+    truth = getattr(driver, "T_camera_base_true", None)  # simulated drivers only
+    return finish(run, args, args.base_frame or driver.robot.base_body, None, truth, started)
+
+
+def observation(session: CalibrationSession) -> dict[str, object]:
+    """What the planners read of the estimate: {"has_estimate", "rotation" (3,) rotvec, "translation" (3,) m}."""
+    assert session.calibrator is not None
+    T_camera_base = session.calibrator.state.T_camera_base
+    if T_camera_base is None:
+        return {"has_estimate": 0}
+    return {"has_estimate": 1, "rotation": Rotation.from_matrix(T_camera_base[:3, :3]).as_rotvec(),
+            "translation": T_camera_base[:3, 3].copy()}

@@ -1,0 +1,7 @@
+"""What a real robot needs, and nothing of the simulator: never gymnasium, never a GL context.
+
+``model`` (the robot from its MJCF or URDF: kinematics and geometry), ``tracking`` (keypoint tracks),
+``recording`` (the recording format), ``session`` (the one calibration loop), ``driver`` (the
+``RobotDriver`` protocol), ``exports`` (result.json and ROS exports; the atomic writer), ``overlay``
+(the robot drawn over frames with an estimate).
+"""

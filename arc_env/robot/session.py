@@ -1,0 +1,544 @@
+"""The one calibration loop: check -> transit -> execute -> track -> ``Calibrator.add_motion``.
+
+Every way ARC-Calib calibrates runs through ``CalibrationSession``: the Gymnasium env (``arc_env.sim.env``,
+the simulator executing motions), ``arc-calib run`` (a ``RobotDriver`` executing them, ``DriverExecutor``),
+``arc-calib record`` (the env, in oracle mode) and ``arc-calib calibrate`` (``calibrate_recording``:
+recorded motions need no check, transit or execution, only tracking and the calibrator).
+
+A session is also what the planners read (``planners.context.PlanningContext``): the robot model, its
+limits and collision checker, the camera's intrinsics, the calibrator and the executed motions, and
+optionally a renderer. It holds no ground truth.
+
+A recording's result is *usable* -- written, exit code 0 -- only when all of these hold:
+
+* the bundle adjustment produced it (``stage == "refined"``): a pose and a covariance;
+* at least ``min_motions`` motions inform it;
+* every 1-sigma rotation component is at most ``max_std_deg`` and every translation one at most
+  ``max_std_mm`` (the convergence monitor's thresholds are tighter, so a converged estimate qualifies).
+
+Otherwise nothing is written: never a pose from too little evidence.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Protocol
+
+import numpy as np
+
+from arc_env.robot.driver import RobotDriver, Sweep
+from arc_env.robot.model import RobotModel, RobotSource
+from arc_env.robot.recording import Recording
+from arc_env.robot.tracking import TrackerConfig, track_keypoints
+from planners.collision import CollisionChecker
+from planners.errors import TransitError
+from planners.transit import TransitConfig, TransitPath, plan_transit
+from solver.arrays import FloatArray, ImageArray
+from solver.errors import ArcCalibError, InvalidInputError
+from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
+from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig, MotionReport
+
+#: The calibrator of online sessions (the env, ``run``): the bundle adjustment gets at most 40 tracks per
+#: motion and 15 frames per track (evenly spaced over the sweep), a fifth of what the tracker delivers at
+#: 1080p, enough for the ellipses, and it keeps tracking + solving within a frame period.
+ONLINE_CALIBRATOR = CalibratorConfig(max_tracks_per_motion=40, max_frames_per_track=15)
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    """How a session checks, moves and calibrates.
+
+    Attributes:
+        min_delta: rad; smallest |Delta| accepted.
+        max_delta: rad; largest |Delta| accepted.
+        collision_step_m: m; a sweep is checked at steps that move no point by more than this.
+        calibrator: solver settings (``ONLINE_CALIBRATOR`` by default).
+        tracker: tracking settings.
+        transit: how the arm gets from where it is to Q (straight if free, else OMPL RRTConnect).
+    """
+
+    min_delta: float = 0.2
+    max_delta: float = 1.5
+    collision_step_m: float = 0.005
+    calibrator: CalibratorConfig = ONLINE_CALIBRATOR
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    transit: TransitConfig = field(default_factory=TransitConfig)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.min_delta < self.max_delta:
+            raise InvalidInputError(f"need 0 < min_delta < max_delta, got {self.min_delta}, {self.max_delta}")
+        if not self.collision_step_m > 0:
+            raise InvalidInputError(f"collision_step_m must be > 0, got {self.collision_step_m}")
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """What executing one exploratory motion gave.
+
+    Attributes:
+        q_start: (n,) rad, the configuration at the first frame.
+        q_end: (n,) rad, where the arm is afterwards.
+        deltas: (F,) rad, the turning joint's offset from q_start at each frame.
+        frames: F images (H, W, 3) uint8 RGB to track, or None when ``tracks`` are given.
+        tracks: keypoint tracks (e.g. the simulator's oracle), or None to track ``frames``.
+        seconds: wall time of the acquisition's parts (e.g. "render", "tracking").
+    """
+
+    q_start: FloatArray
+    q_end: FloatArray
+    deltas: FloatArray
+    frames: Sequence[ImageArray] | None = None
+    tracks: Sequence[KeypointTrack] | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+class MotionExecutor(Protocol):
+    """Carries out an exploratory motion: the simulator, or a robot through its driver."""
+
+    def execute(self, q: FloatArray, joint: int, delta: float) -> Acquisition:
+        """Move to q (n,) rad, turn joint ``joint`` by delta rad while recording; return what was seen."""
+        ...
+
+
+@dataclass(frozen=True)
+class MotionOutcome:
+    """What the calibrator made of one motion (the env's ``info["motion"]``).
+
+    Attributes:
+        joint: the joint that turned.
+        n_tracks: keypoint tracks handed over.
+        accepted: the calibrator accepted it (at this update).
+        reason: why not ("" when accepted).
+        stage_one: "" or why stage one found no axis.
+        report: the calibrator's report, None when the motion never reached it.
+    """
+
+    joint: int
+    n_tracks: int
+    accepted: bool
+    reason: str
+    stage_one: str = ""
+    report: MotionReport | None = None
+
+    def as_info(self) -> dict[str, object]:
+        """The env's ``info["motion"]`` dict."""
+        return {"joint": self.joint, "n_tracks": self.n_tracks, "accepted": self.accepted, "reason": self.reason,
+                "stage_one": self.stage_one}
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """One ``CalibrationSession.step``.
+
+    Attributes:
+        refused: "" or why the motion was not executed (the robot did not move).
+        transit: the executed transit to Q (None when refused).
+        motion: the calibrator's verdict (None when refused).
+        n_frames: frames of the sweep.
+        seconds: wall time: "transit", "render" (or the robot's sweep), "tracking", "solver".
+    """
+
+    refused: str
+    transit: TransitPath | None = None
+    motion: MotionOutcome | None = None
+    n_frames: int = 0
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+class CalibrationSession:
+    """A calibration in progress: the robot, the camera, the calibrator and the motions executed so far.
+
+    Args:
+        robot: the robot model (kinematics, limits, collision geometry).
+        intrinsics: the camera the tracks come from.
+        executor: carries out motions (None for recordings, which only ``observe``).
+        config: checks, transit, tracker and calibrator settings.
+        renderer: what planners may render (``planners.context.SceneRenderer``), or None.
+
+    Attributes:
+        calibrator: the calibrator (None before ``reset``).
+        executed: the executed motions of this session, in order: (Q (n,) rad, J, delta rad).
+        last_transit: the last executed transit (None before the first motion).
+        n_motions: executed motions; ``n_refused``: refused ones.
+        np_random: the generator the session was reset with.
+    """
+
+    def __init__(self, robot: RobotModel, intrinsics: CameraIntrinsics, executor: MotionExecutor | None = None,
+                 config: SessionConfig | None = None, renderer: object | None = None):
+        self.robot = robot
+        self.intrinsics = intrinsics
+        self.executor = executor
+        self.config = config or SessionConfig()
+        self.renderer = renderer
+        self.calibrator: Calibrator | None = None
+        self.executed: list[tuple[FloatArray, int, float]] = []
+        self.last_transit: TransitPath | None = None
+        self.n_motions = 0
+        self.n_refused = 0
+        self.np_random = np.random.default_rng()
+        self._checker: CollisionChecker | None = None
+        self._transit_seed = 0
+
+    # -- the planning context ------------------------------------------------------------------
+    @property
+    def min_delta(self) -> float:
+        """rad; smallest |Delta| accepted."""
+        return self.config.min_delta
+
+    @property
+    def max_delta(self) -> float:
+        """rad; largest |Delta| accepted."""
+        return self.config.max_delta
+
+    @property
+    def checker(self) -> CollisionChecker:
+        """The collision checker of the robot's model (built on first use after ``reset``)."""
+        if self._checker is None:
+            self._checker = CollisionChecker(self.robot.model, self.robot.arm_joints,
+                                             qpos_ref=self.robot.data.qpos.copy())
+        return self._checker
+
+    def reset(self, rng: np.random.Generator | None = None) -> None:
+        """Start over: the arm at home, an empty calibrator, no motions.
+
+        Args:
+            rng: draws the calibrator's seed and the transit planner's (in that order); None keeps the
+                calibrator config's own seed.
+        """
+        self.robot.set_q(self.robot.home)
+        self._checker = None
+        config = self.config.calibrator
+        if rng is not None:
+            config = replace(config, seed=int(rng.integers(2**31 - 1)))
+            self.np_random = rng
+        self.calibrator = Calibrator(self.intrinsics, self.robot.axis_and_point, config)
+        self.n_motions = 0
+        self.n_refused = 0
+        self.executed = []
+        self.last_transit = None
+        self._transit_seed = int(rng.integers(2**31 - 1)) if rng is not None else 0
+
+    def refusal_reason(self, q: FloatArray, joint: int, delta: float) -> str:
+        """Why the motion (q (n,) rad, joint, delta rad) would be refused, or "" if it is valid."""
+        r, c = self.robot, self.config
+        if not 0 <= joint < r.n_joints:
+            return f"joint {joint} is not in [0, {r.n_joints})"
+        out = np.nonzero((q < r.lower - 1e-9) | (q > r.upper + 1e-9))[0]
+        if out.size:
+            k = int(out[0])
+            return f"Q[{k}] = {q[k]:.3f} rad is outside the limits [{r.lower[k]:.3f}, {r.upper[k]:.3f}]"
+        if abs(delta) < c.min_delta:
+            return f"|delta| = {abs(delta):.3f} rad is below the minimum {c.min_delta} rad"
+        if abs(delta) > c.max_delta + 1e-9:
+            return f"|delta| = {abs(delta):.3f} rad is above the maximum {c.max_delta} rad"
+        end = q[joint] + delta
+        if not r.lower[joint] - 1e-9 <= end <= r.upper[joint] + 1e-9:
+            return (f"the sweep ends at {end:.3f} rad, outside joint {joint}'s limits "
+                    f"[{r.lower[joint]:.3f}, {r.upper[joint]:.3f}]")
+        hit, why = self.checker.in_collision(q)
+        if hit:
+            return f"start configuration in collision: {why}"
+        free, why = self.checker.sweep_free(q, joint, delta, c.collision_step_m)
+        if not free:
+            return f"sweep in collision: {why}"
+        return ""
+
+    # -- the loop --------------------------------------------------------------------------------
+    def refuse(self, reason: str) -> StepResult:
+        """Count a refused action (the robot does not move)."""
+        self.n_refused += 1
+        return StepResult(reason)
+
+    def step(self, q: FloatArray, joint: int, delta: float) -> StepResult:
+        """Check the motion, plan the transit to Q, execute it, track its frames and add it to the calibrator.
+
+        Raises:
+            InvalidInputError: the session has no executor, or the executor returned malformed data.
+        """
+        if self.calibrator is None:
+            raise InvalidInputError("call reset() before step()")
+        if self.executor is None:
+            raise InvalidInputError("this session has no executor: it only observes recorded motions")
+        reason = self.refusal_reason(q, joint, delta)
+        transit: TransitPath | None = None
+        if not reason:
+            try:
+                transit = plan_transit(self.checker, self.robot.lower, self.robot.upper, self.robot.q, q,
+                                       self.config.transit, seed=self._transit_seed + self.n_motions + self.n_refused)
+            except TransitError as exc:
+                reason = f"no transit to Q: {exc}"
+        if reason or transit is None:
+            return self.refuse(reason)
+        self.last_transit = transit
+        self.executed.append((q.copy(), joint, delta))
+        acquired = self.executor.execute(q, joint, delta)
+        seconds = dict(acquired.seconds)
+        tracks = acquired.tracks
+        if tracks is None:
+            t0 = time.perf_counter()
+            tracks = self.track(acquired.frames or [], acquired.deltas)
+            seconds["tracking"] = time.perf_counter() - t0
+        self.robot.set_q(acquired.q_end)
+        seconds["transit"] = transit.seconds
+        t0 = time.perf_counter()
+        outcome = self.observe(acquired.q_start, joint, tracks)
+        seconds["solver"] = time.perf_counter() - t0
+        self.n_motions += 1
+        return StepResult("", transit, outcome, len(acquired.deltas), seconds)
+
+    def track(self, frames: Sequence[ImageArray], deltas: FloatArray) -> list[KeypointTrack]:
+        """Keypoint tracks of one motion's frames (F images) with the joint offset deltas (F,) rad of each."""
+        return list(track_keypoints(frames, deltas, self.config.tracker).tracks)
+
+    def observe(self, q_start: FloatArray, joint: int, tracks: Sequence[KeypointTrack],
+                update: bool = True) -> MotionOutcome:
+        """Hand one motion's tracks to the calibrator (after checking the robot model accepts the motion).
+
+        Args:
+            q_start: (n,) rad, Q.
+            joint: the joint that turned.
+            tracks: its keypoint tracks.
+            update: recompute the estimate now (Algorithm 1 updates once three motions are in).
+        """
+        if self.calibrator is None:
+            raise InvalidInputError("call reset() before observe()")
+        try:  # checked here: a motion the kinematics reject must not reach the calibrator
+            self.robot.axis_and_point(q_start, joint)
+        except ArcCalibError as exc:
+            return MotionOutcome(joint, len(tracks), False, f"the robot model rejects this motion: {exc}")
+        try:
+            report = self.calibrator.add_motion(MotionObservation(q_start=q_start, joint=joint, tracks=tuple(tracks)),
+                                                update=update)
+        except ArcCalibError as exc:
+            return MotionOutcome(joint, len(tracks), False, f"solver error: {exc}")
+        return MotionOutcome(joint, len(tracks), report.accepted, report.reason, report.stage_one, report)
+
+
+class DriverExecutor:
+    """Executes motions on a robot through its ``RobotDriver``: move to Q, sweep, read the joints per frame.
+
+    Args:
+        driver: the robot.
+        on_sweep: called with (motion index, q_start (n,) rad, joint, Sweep) after every sweep (e.g. to
+            record it).
+    """
+
+    def __init__(self, driver: RobotDriver, on_sweep: Callable[[int, FloatArray, int, Sweep], None] | None = None):
+        self.driver = driver
+        self.on_sweep = on_sweep
+        self.n_sweeps = 0
+
+    def execute(self, q: FloatArray, joint: int, delta: float) -> Acquisition:
+        """Move, sweep and check the driver's answer.
+
+        Raises:
+            InvalidInputError: the sweep has fewer than 3 frames, or positions of the wrong shape or not finite.
+        """
+        t0 = time.perf_counter()
+        self.driver.move_to(q)
+        sweep = self.driver.sweep(joint, delta)
+        positions = np.asarray(sweep.positions, dtype=np.float64)
+        n = len(self.driver.joint_names)
+        if len(sweep.frames) < 3 or positions.shape != (len(sweep.frames), n) or not np.all(np.isfinite(positions)):
+            raise InvalidInputError(f"driver sweep must return >= 3 frames and finite positions "
+                                    f"({len(sweep.frames)}, {n}); got {len(sweep.frames)} frames, "
+                                    f"positions {positions.shape}")
+        seconds = {"render": time.perf_counter() - t0}
+        if self.on_sweep is not None:
+            self.on_sweep(self.n_sweeps, positions[0], joint, sweep)
+        self.n_sweeps += 1
+        return Acquisition(positions[0], positions[-1], positions[:, joint] - positions[0, joint], sweep.frames,
+                           None, seconds)
+
+
+@dataclass(frozen=True)
+class UsableCriteria:
+    """When a calibration result is usable (see the module docstring).
+
+    Attributes:
+        min_motions: fewest motions that must inform the estimate.
+        max_std_deg: degrees; largest 1-sigma of each rotation component.
+        max_std_mm: mm; largest 1-sigma of each translation component.
+    """
+
+    min_motions: int = 4
+    max_std_deg: float = 0.25
+    max_std_mm: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.min_motions < 3 or not self.max_std_deg > 0 or not self.max_std_mm > 0:
+            raise InvalidInputError("need min_motions >= 3, max_std_deg > 0 and max_std_mm > 0")
+
+
+@dataclass
+class MotionDiagnostic:
+    """What became of one recorded motion."""
+
+    motion: str
+    joint: str | None
+    frames: int
+    tracks: int = 0
+    accepted: bool = False
+    reason: str = ""
+    inlier_tracks: int = 0
+    axis_error_rad: float | None = None
+    plane_distance_m: float | None = None
+    linear: bool = False
+    note: str = ""
+    seconds: float = 0.0
+
+
+@dataclass
+class CalibrationRun:
+    """A finished calibration: of a recording, or online through a driver.
+
+    Attributes:
+        source: what was calibrated (the recording's path, or the driver).
+        calibrator: the calibrator after its last update.
+        diagnostics: one per motion, in order.
+        seconds: wall time per part of the work.
+        recording: the recording (None online).
+    """
+
+    source: str
+    calibrator: Calibrator
+    diagnostics: list[MotionDiagnostic]
+    seconds: dict[str, float] = field(default_factory=dict)
+    recording: Recording | None = None
+
+    @property
+    def n_accepted(self) -> int:
+        """Motions informing the estimate."""
+        return sum(d.accepted for d in self.diagnostics)
+
+
+def driver_session(driver: RobotDriver, config: SessionConfig | None = None,
+                   on_sweep: Callable[[int, FloatArray, int, Sweep], None] | None = None,
+                   renderer: object | None = None) -> CalibrationSession:
+    """A session in which ``driver`` executes the motions, on the driver's robot model.
+
+    The model (``RobotModel.load``: the driver's file, base body and joint order, a collision-only
+    ground plane) keeps the joint limits of the model intersected with the driver's; the camera is the
+    driver's. Call ``reset`` before stepping.
+
+    Raises:
+        InvalidInputError: the model does not load, or the driver's limits are not two (n,) arrays
+            with lower < upper.
+    """
+    source = RobotSource(path=driver.robot.path, base_body=driver.robot.base_body,
+                         joints=tuple(driver.joint_names), home=())
+    robot = RobotModel.load(source)
+    lower, upper = (np.asarray(a, dtype=np.float64) for a in driver.joint_limits)
+    n = robot.n_joints
+    if lower.shape != (n,) or upper.shape != (n,) or np.any(lower >= upper):
+        raise InvalidInputError(f"driver joint_limits must be two ({n},) arrays with lower < upper")
+    robot.lower = np.maximum(robot.lower, lower)
+    robot.upper = np.minimum(robot.upper, upper)
+    return CalibrationSession(robot, driver.intrinsics, DriverExecutor(driver, on_sweep), config, renderer)
+
+
+def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = None,
+                        config: CalibratorConfig | None = None,
+                        on_motion: Callable[[str], None] | None = None) -> CalibrationRun:
+    """Track every usable motion and calibrate; motions pruned on the way keep their reasons.
+
+    Args:
+        recording: the validated recording.
+        tracker: tracking settings.
+        config: solver settings (default ``CalibratorConfig()``: more tracks per motion than online).
+        on_motion: called with a one-line status after each motion (a progress display).
+
+    Raises:
+        InvalidInputError: a frame or video does not decode (the message names it).
+    """
+    session = CalibrationSession(recording.robot, recording.intrinsics,
+                                 config=SessionConfig(calibrator=config or CalibratorConfig(),
+                                                      tracker=tracker or TrackerConfig()))
+    session.reset()
+    calibrator = session.calibrator
+    assert calibrator is not None
+    names = recording.joint_names
+    diagnostics: list[MotionDiagnostic] = []
+    by_report: dict[int, MotionDiagnostic] = {}
+    seconds = {"decode": 0.0, "tracking": 0.0, "solver": 0.0}
+    started = time.perf_counter()
+    updated = False
+    for m in recording.motions:
+        diag = MotionDiagnostic(m.name, names[m.joint] if m.joint is not None else None, m.n_frames)
+        diagnostics.append(diag)
+        t0 = time.perf_counter()
+        if m.pruned:
+            diag.reason = m.pruned
+        else:
+            frames = recording.frames(m)
+            t1 = time.perf_counter()
+            tracks = session.track(frames, m.delta)
+            del frames
+            t2 = time.perf_counter()
+            diag.tracks = len(tracks)
+            if not tracks:
+                diag.reason = "no keypoint tracks: nothing moved in the images (is the robot in view?)"
+            else:
+                assert m.joint is not None
+                update = len(calibrator.reports) >= 2  # Algorithm 1: update once 3 motions are in
+                outcome = session.observe(m.q_start, m.joint, tracks, update=update)
+                if outcome.report is None:
+                    diag.reason = outcome.reason
+                else:
+                    by_report[outcome.report.index] = diag
+                    updated = update
+            seconds["decode"] += t1 - t0
+            seconds["tracking"] += t2 - t1
+            seconds["solver"] += time.perf_counter() - t2
+        diag.seconds = time.perf_counter() - t0
+        if on_motion is not None:
+            what = diag.reason[:60] if diag.reason and not diag.tracks else f"{diag.tracks} tracks"
+            on_motion(f"motion {m.name} joint {diag.joint or '-'}: {m.n_frames} frames, {what}; "
+                      f"{estimate_status(calibrator.state)}")
+    if calibrator.reports and not updated:  # the last motion added did not update (or failed)
+        t0 = time.perf_counter()
+        calibrator.update()
+        seconds["solver"] += time.perf_counter() - t0
+    for r in calibrator.reports:
+        copy_report(r, by_report[r.index])
+    seconds["total"] = time.perf_counter() - started
+    return CalibrationRun(str(recording.path), calibrator, diagnostics, seconds, recording)
+
+
+def estimate_status(state: CalibrationState) -> str:
+    """The estimate in a few words for progress lines: ``refined estimate, 7 accepted`` or ``no estimate yet``."""
+    if state.T_camera_base is None:
+        return "no estimate yet"
+    return f"{state.stage} estimate, {state.n_accepted} accepted"
+
+
+def copy_report(report: MotionReport, diag: MotionDiagnostic) -> None:
+    """Fill a diagnostic from the calibrator's final report on that motion."""
+    diag.accepted, diag.inlier_tracks, diag.linear = report.accepted, report.n_inlier_tracks, report.linear
+    diag.reason = report.reason
+    diag.axis_error_rad, diag.plane_distance_m = report.eps_a, report.eps_d
+    diag.note = f"no axis for the linear stage: {report.stage_one}" if report.stage_one and report.accepted else ""
+
+
+def unusable_reason(run: CalibrationRun, criteria: UsableCriteria) -> str:
+    """"" when the result is usable, else why not."""
+    s = run.calibrator.state
+    if not run.calibrator.reports:
+        return (f"none of the {len(run.diagnostics)} motions gave keypoint tracks (pruned, or nothing moved "
+                "in the images: is the robot in view?)")
+    if s.T_camera_base is None:
+        return f"no estimate: {s.message}"
+    if s.stage != "refined" or s.std is None:
+        return f"only a {s.stage} estimate (the bundle adjustment gave none: {s.message or 'see motions'})"
+    if run.n_accepted < criteria.min_motions:
+        return f"only {run.n_accepted} motion(s) inform the estimate (need {criteria.min_motions})"
+    std_deg, std_mm = np.degrees(s.std[:3]), s.std[3:] * 1e3
+    if np.any(std_deg > criteria.max_std_deg) or np.any(std_mm > criteria.max_std_mm):
+        return (f"the estimate is too uncertain: 1-sigma rotation {np.round(std_deg, 3).tolist()} deg "
+                f"(limit {criteria.max_std_deg}), translation {np.round(std_mm, 2).tolist()} mm "
+                f"(limit {criteria.max_std_mm}); record more motions")
+    return ""
+
+

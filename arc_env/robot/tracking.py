@@ -1,0 +1,556 @@
+"""Keypoint tracks from the frames of one exploratory motion: Shi–Tomasi corners, pyramidal Lucas–Kanade.
+
+One joint turns, so the moving links are the only part of the image that changes. ``moving_mask`` finds
+those pixels from the frames alone; ``track_keypoints`` detects corners inside them, follows each corner
+frame to frame with pyramidal LK and a forward–backward check, and hands back
+``solver.observations.KeypointTrack`` objects the solver consumes directly.
+
+Translation-only LK drifts when the patch turns: each step is biased by (rotation) x (offset between the
+corner and the window's gradient "balance point"), and on a rotating link that bias has the same sign
+every frame, so a 1 rad sweep ends 1-2 px off the true point, and the fb check cannot see it (the backward
+step has the opposite bias). So each frame the LK position is refined by an affine fit of the track's
+first-frame patch (inverse-compositional Lucas–Kanade, Baker & Matthews 2004), which does not drift, and
+the fit's residual ends tracks whose patch no longer matches (Shi & Tomasi 1994's dissimilarity check):
+occlusions, background points dragged by a passing edge, corners on silhouettes.
+
+Pure numpy/OpenCV (never MuJoCo): rendered frames and real-robot recordings go through the same code.
+Pixels are OpenCV pixels (x right, y down, origin at the centre of the top-left pixel).
+
+Speed: OpenCV's Python bindings cannot pass ``cv2.buildOpticalFlowPyramid`` output to
+``cv2.calcOpticalFlowPyrLK`` (opencv/opencv#4777), so each LK call builds its own pyramids. Instead all
+work runs on the bounding box of the moving mask (plus the LK window's reach at the coarsest level),
+which is usually a fraction of the frame.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from solver.arrays import FloatArray, ImageArray, MaskArray
+from solver.errors import InvalidInputError
+from solver.observations import KeypointTrack
+
+#: LK termination: stop after 30 iterations or when an update is below 0.01 px (per pyramid level).
+DEFAULT_CRITERIA: tuple[int, int, float] = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Settings of ``moving_mask`` and ``track_keypoints``.
+
+    Attributes:
+        max_corners: most live tracks at any time (``cv2.goodFeaturesToTrack``'s maxCorners); count.
+        quality_level: a corner is kept if its smaller structure-tensor eigenvalue is at least this
+            fraction of the strongest corner's in the searched region; dimensionless, in (0, 1).
+        min_distance_px: least distance between two corners, and between a new corner and a live
+            track when re-detecting; pixels.
+        block_size: side of the window over which the structure tensor is summed; pixels, >= 3.
+        win_size_px: side of the LK search window at every pyramid level; pixels, odd, >= 5.
+        max_level: coarsest LK pyramid level (0 = no pyramid; each level halves the image); count.
+        criteria: LK termination ``(type, max_iterations, epsilon_px)`` as ``cv2.TermCriteria``:
+            type is a combination of ``cv2.TERM_CRITERIA_COUNT`` and ``cv2.TERM_CRITERIA_EPS``,
+            epsilon is the update size in pixels below which the iteration stops.
+        fb_max_px: forward–backward check: a point tracked frame k -> k+1 and back again must land
+            within this distance of where it started, or its track ends at frame k; pixels.
+        motion_threshold: a pixel moves if its grey level differs from the first frame's by more
+            than this in at least ``mask_min_frames`` frames; grey levels (0..255).
+        mask_min_frames: how many frames must show the change (more than one, so a single glitched
+            frame does not mark the whole image as moving); frames, >= 1 (capped at F - 1).
+        mask_open_px: side of the elliptical kernel that opens the thresholded mask (removes
+            speckle narrower than this); pixels, 0 or 1 = no opening.
+        mask_dilate_px: side of the elliptical kernel that then dilates the mask (fills uniform
+            interiors, reaches corners on silhouettes); pixels, 0 or 1 = no dilation.
+        redetect_every: every this many frames, detect new corners in moving regions farther than
+            ``min_distance_px`` from every live track (up to ``max_corners`` live tracks); frames,
+            0 = detect only in the first frame.
+        min_track_frames: tracks with fewer frames than this are dropped; frames, >= 2.
+        min_displacement_px: tracks whose points all stay within this distance of their first point
+            are static and dropped; pixels.
+        affine_iterations: most Gauss–Newton steps of the per-frame affine refinement against the
+            track's first patch (a win_size_px square); count, 0 = plain LK (no refinement and no
+            dissimilarity check; faster, but drifts on rotating links).
+        max_dissimilarity: a track ends when the RMS residual of its affine fit, after removing the
+            mean, exceeds this fraction of its first patch's standard deviation; dimensionless
+            (0 = identical patches, about 1.4 = unrelated ones).
+    """
+
+    max_corners: int = 400
+    quality_level: float = 0.01
+    min_distance_px: float = 10.0
+    block_size: int = 7
+    win_size_px: int = 21
+    max_level: int = 3
+    criteria: tuple[int, int, float] = DEFAULT_CRITERIA
+    fb_max_px: float = 0.5
+    motion_threshold: int = 15
+    mask_min_frames: int = 2
+    mask_open_px: int = 3
+    mask_dilate_px: int = 7
+    redetect_every: int = 10
+    min_track_frames: int = 10
+    min_displacement_px: float = 3.0
+    affine_iterations: int = 10
+    max_dissimilarity: float = 0.25
+
+    def __post_init__(self) -> None:
+        checks = [
+            (self.max_corners >= 1, "max_corners must be >= 1"),
+            (0.0 < self.quality_level < 1.0, "quality_level must be in (0, 1)"),
+            (self.min_distance_px >= 0.0, "min_distance_px must be >= 0"),
+            (self.block_size >= 3, "block_size must be >= 3"),
+            (self.win_size_px >= 5 and self.win_size_px % 2 == 1, "win_size_px must be odd and >= 5"),
+            (0 <= self.max_level <= 8, "max_level must be in 0..8"),
+            (self.fb_max_px > 0.0, "fb_max_px must be > 0"),
+            (0 <= self.motion_threshold < 255, "motion_threshold must be in 0..254 grey levels"),
+            (self.mask_min_frames >= 1, "mask_min_frames must be >= 1"),
+            (self.mask_open_px >= 0, "mask_open_px must be >= 0"),
+            (self.mask_dilate_px >= 0, "mask_dilate_px must be >= 0"),
+            (self.redetect_every >= 0, "redetect_every must be >= 0 (0 = first frame only)"),
+            (self.min_track_frames >= 2, "min_track_frames must be >= 2"),
+            (self.min_displacement_px >= 0.0, "min_displacement_px must be >= 0"),
+            (self.affine_iterations >= 0, "affine_iterations must be >= 0 (0 = plain LK)"),
+            (self.max_dissimilarity > 0.0, "max_dissimilarity must be > 0"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise InvalidInputError(f"TrackerConfig: {message}")
+        criteria = tuple(self.criteria)
+        valid_types = cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS
+        if (len(criteria) != 3 or not 0 < int(criteria[0]) <= valid_types or int(criteria[1]) < 1
+                or not float(criteria[2]) >= 0.0):
+            raise InvalidInputError(
+                "TrackerConfig: criteria must be (type, max_iterations >= 1, epsilon_px >= 0) with type "
+                f"a combination of cv2.TERM_CRITERIA_COUNT and cv2.TERM_CRITERIA_EPS, got {self.criteria}"
+            )
+        object.__setattr__(self, "criteria", (int(criteria[0]), int(criteria[1]), float(criteria[2])))
+
+
+@dataclass(frozen=True)
+class TrackingResult:
+    """What ``track_keypoints`` found in one sweep.
+
+    Every detected corner ends up in exactly one place: ``n_detected == len(tracks) + n_dropped_fb
+    + n_dropped_dissimilar + n_dropped_short + n_dropped_static``.
+
+    Attributes:
+        tracks: the kept tracks, pixels (M, 2) float64 and delta (M,) float64 rad each, over
+            consecutive frames.
+        n_detected: corners detected (first frame and re-detections); count.
+        n_dropped_fb: tracks ended by the forward–backward check (or LK failure, or leaving the
+            image) before reaching ``min_track_frames``; count.
+        n_dropped_dissimilar: tracks ended by the affine dissimilarity check before reaching
+            ``min_track_frames``; count.
+        n_dropped_short: tracks that reached the last frame but have fewer than ``min_track_frames``
+            frames (late re-detections); count.
+        n_dropped_static: long-enough tracks that never left ``min_displacement_px`` of their start; count.
+        n_truncated: kept tracks that a check ended before the last frame (their prefix is kept); count.
+        seconds: wall-clock time of the whole call; seconds.
+    """
+
+    tracks: list[KeypointTrack]
+    n_detected: int
+    n_dropped_fb: int
+    n_dropped_dissimilar: int
+    n_dropped_short: int
+    n_dropped_static: int
+    n_truncated: int
+    seconds: float
+
+
+def _grey_frames(frames: Sequence[ImageArray]) -> list[ImageArray]:
+    """Validate the frames and return them as C-contiguous (H, W) uint8 greyscale images."""
+    try:
+        n_frames = len(frames)
+    except TypeError as exc:
+        raise InvalidInputError(f"frames must be a sequence of images, got {type(frames).__name__}") from exc
+    if n_frames < 2:
+        raise InvalidInputError(f"need at least 2 frames to track, got {n_frames}")
+    greys: list[ImageArray] = []
+    shape: tuple[int, ...] | None = None
+    for i, frame in enumerate(frames):
+        image = np.asarray(frame)
+        if image.dtype != np.uint8:
+            raise InvalidInputError(f"frame {i} must be uint8, got {image.dtype}")
+        if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
+            raise InvalidInputError(f"frame {i} must be (H, W) grey or (H, W, 3) RGB, got shape {image.shape}")
+        if image.shape[0] == 0 or image.shape[1] == 0:
+            raise InvalidInputError(f"frame {i} is empty (shape {image.shape})")
+        if shape is None:
+            shape = image.shape
+        elif image.shape != shape:
+            raise InvalidInputError(f"frame {i} has shape {image.shape}, but frame 0 has shape {shape}")
+        grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else np.ascontiguousarray(image)
+        greys.append(grey)
+    return greys
+
+
+def _ellipse(size_px: int) -> NDArray[np.uint8]:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
+
+
+def _moving_mask_u8(greys: list[ImageArray], config: TrackerConfig) -> ImageArray:
+    """(H, W) uint8 mask, 255 where the sweep changes the image (see ``moving_mask``)."""
+    first = greys[0]
+    count = np.zeros_like(first)  # frames in which the pixel differs from the first (saturates at 255)
+    for grey in greys[1:]:
+        _, changed = cv2.threshold(cv2.absdiff(grey, first), config.motion_threshold, 1, cv2.THRESH_BINARY)
+        cv2.add(count, changed, dst=count)
+    min_frames = min(config.mask_min_frames, len(greys) - 1, 255)
+    _, mask = cv2.threshold(count, min_frames - 1, 255, cv2.THRESH_BINARY)
+    if config.mask_open_px > 1:
+        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _ellipse(config.mask_open_px))
+    if config.mask_dilate_px > 1:
+        mask = cv2.dilate(mask, _ellipse(config.mask_dilate_px))
+    return mask
+
+
+def moving_mask(frames: Sequence[ImageArray], config: TrackerConfig | None = None) -> MaskArray:
+    """Pixels whose intensity changes during a sweep, from the images alone.
+
+    A pixel moves if its grey level differs from the first frame's by more than
+    ``config.motion_threshold`` in at least ``config.mask_min_frames`` frames; the mask is then opened
+    (speckle removed) and dilated. It covers every place the moving links pass through, including
+    background they uncover or cover (the tracker's checks drop corners found there).
+
+    Args:
+        frames: F >= 2 images of one sweep, each (H, W) uint8 grey or (H, W, 3) uint8 RGB.
+        config: thresholds and kernel sizes; ``TrackerConfig()`` if None.
+
+    Returns:
+        (H, W) bool: True where the image changes.
+
+    Raises:
+        InvalidInputError: fewer than 2 frames, frames of different shapes, empty or non-uint8 images.
+    """
+    config = TrackerConfig() if config is None else config
+    return _moving_mask_u8(_grey_frames(frames), config) > 0
+
+
+def _detect(image: ImageArray, mask: ImageArray, live: NDArray[np.float32], n_max: int,
+            config: TrackerConfig) -> NDArray[np.float32]:
+    """(n, 2) float32 Shi–Tomasi corners in ``mask``, at least min_distance_px from the ``live`` points."""
+    if n_max <= 0:
+        return np.empty((0, 2), np.float32)
+    if live.shape[0] and config.min_distance_px > 0:
+        mask = mask.copy()
+        radius = int(np.ceil(config.min_distance_px))
+        for x, y in np.rint(live).astype(np.int32):
+            cv2.circle(mask, (int(x), int(y)), radius, 0, thickness=-1)
+    corners = cv2.goodFeaturesToTrack(image, maxCorners=n_max, qualityLevel=config.quality_level,
+                                      minDistance=config.min_distance_px, mask=mask,
+                                      blockSize=config.block_size)
+    if corners is None:
+        return np.empty((0, 2), np.float32)
+    return corners.reshape(-1, 2).astype(np.float32)
+
+
+def _box(x: int, y: int, w: int, h: int, shape: tuple[int, ...],
+         config: TrackerConfig) -> tuple[int, int, int, int]:
+    """(x0, y0, x1, y1): the box (x, y, w, h) grown by the LK window's reach at the coarsest level."""
+    scale = 1 << config.max_level
+    margin = (config.win_size_px // 2 + 2) * scale
+    # Start on a multiple of the coarsest scale so the crop's pyramid samples the same pixels as the frame's.
+    x0 = max(0, x - margin) // scale * scale
+    y0 = max(0, y - margin) // scale * scale
+    return x0, y0, min(shape[1], x + w + margin), min(shape[0], y + h + margin)
+
+
+def _roi(mask: ImageArray, config: TrackerConfig) -> tuple[int, int, int, int] | None:
+    """(x0, y0, x1, y1) crop holding the mask and the LK window's reach, or None for an empty mask."""
+    x, y, w, h = cv2.boundingRect(mask)
+    if w == 0 or h == 0:
+        return None
+    return _box(x, y, w, h, mask.shape, config)
+
+
+def _lk_step(prev: ImageArray, nxt: ImageArray, pts: NDArray[np.float32],
+             config: TrackerConfig) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """Pyramidal LK from ``prev`` to ``nxt`` with the forward–backward check.
+
+    Both images are cropped to the points' bounding box plus the window's reach first: OpenCV builds
+    the pyramids of the whole image it is given, and the live points usually cover a fraction of it.
+
+    Returns:
+        (n, 2) float32 positions in ``nxt`` and (n,) bool: LK found the point both ways and the round
+        trip closed within ``config.fb_max_px``.
+    """
+    lo = np.floor(pts.min(axis=0)).astype(int)
+    hi = np.ceil(pts.max(axis=0)).astype(int)
+    x0, y0, x1, y1 = _box(int(lo[0]), int(lo[1]), int(hi[0] - lo[0]) + 1, int(hi[1] - lo[1]) + 1,
+                          prev.shape, config)
+    offset = np.array([x0, y0], dtype=np.float32)
+    local = pts - offset
+    lk = {"winSize": (config.win_size_px, config.win_size_px), "maxLevel": config.max_level,
+          "criteria": config.criteria}
+    prev_crop, next_crop = prev[y0:y1, x0:x1], nxt[y0:y1, x0:x1]
+    forward, status_f, _ = cv2.calcOpticalFlowPyrLK(prev_crop, next_crop, local, None, **lk)
+    backward, status_b, _ = cv2.calcOpticalFlowPyrLK(next_crop, prev_crop, forward, None, **lk)
+    forward, backward = forward.reshape(-1, 2), backward.reshape(-1, 2)
+    ok = ((status_f.ravel() == 1) & (status_b.ravel() == 1)
+          & (np.linalg.norm(backward - local, axis=1) <= config.fb_max_px))
+    return forward + offset, ok
+
+
+#: The affine refinement may move a point at most this far from its LK estimate; pixels. A farther
+#: fit has slid onto another structure (one LK step errs by ~0.05 px, its rotation bias by ~0.1 px).
+_MAX_REFINE_SHIFT_PX = 2.0
+
+#: Largest area change of a patch the affine fit may report (a factor): det(A) must lie in [1/4, 4].
+_MAX_AREA_RATIO = 4.0
+
+#: Why a track ended before the last frame.
+_RUNNING, _ENDED_FB, _ENDED_DISSIMILAR = 0, 1, 2
+
+
+@dataclass
+class _LiveTracks:
+    """The live tracks and, per track, its first-frame patch for the affine refinement (P pixels).
+
+    Attributes:
+        ids: (n,) int64: track ids.
+        pts: (n, 2) float32, pixels in the crop: positions in the current frame.
+        template: (n, P) float32, grey levels: the first patch minus its mean.
+        scale: (n,) float32, grey levels: the first patch's standard deviation.
+        steepest: (n, 6, P) float32: steepest-descent images of the affine parameters
+            (a11, a12, a21, a22, tx, ty) at the identity, mean removed.
+        hessian_inv: (n, 6, 6) float64: inverse Gauss–Newton Hessians.
+        A: (n, 2, 2) float64: current linear part of the patch's affine map (first frame -> current).
+    """
+
+    ids: NDArray[np.int64]
+    pts: NDArray[np.float32]
+    template: NDArray[np.float32]
+    scale: NDArray[np.float32]
+    steepest: NDArray[np.float32]
+    hessian_inv: NDArray[np.float64]
+    A: NDArray[np.float64]
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+    def select(self, keep: NDArray[np.bool_]) -> _LiveTracks:
+        if np.all(keep):
+            return self
+        return _LiveTracks(**{f.name: getattr(self, f.name)[keep] for f in fields(self)})
+
+    def extend(self, other: _LiveTracks) -> _LiveTracks:
+        if len(other) == 0:
+            return self
+        return _LiveTracks(**{f.name: np.concatenate([getattr(self, f.name), getattr(other, f.name)])
+                              for f in fields(self)})
+
+
+def _patch_offsets(win_size_px: int) -> NDArray[np.float32]:
+    """(P, 2) float32, pixels: the (x, y) offsets of a win_size_px square, row by row."""
+    half = win_size_px // 2
+    r = np.arange(-half, half + 1, dtype=np.float32)
+    gx, gy = np.meshgrid(r, r)
+    return np.column_stack([gx.ravel(), gy.ravel()])
+
+
+def _new_tracks(image: ImageArray, pts: NDArray[np.float32], first_id: int,
+                config: TrackerConfig) -> _LiveTracks:
+    """Tracks starting at ``pts`` in ``image``, with their patches if the affine refinement is on."""
+    n = pts.shape[0]
+    ids = np.arange(first_id, first_id + n, dtype=np.int64)
+    A = np.tile(np.eye(2), (n, 1, 1))
+    if config.affine_iterations == 0 or n == 0:
+        return _LiveTracks(ids, pts, np.zeros((n, 0), np.float32), np.ones(n, np.float32),
+                           np.zeros((n, 6, 0), np.float32), np.zeros((n, 6, 6)), A)
+    w = config.win_size_px
+    # Sample a one-pixel larger square so central differences cover the whole patch.
+    r = np.arange(-(w // 2) - 1, w // 2 + 2, dtype=np.float32)
+    gx, gy = np.meshgrid(r, r)
+    map_x = (pts[:, 0, None, None] + gx).reshape(n * (w + 2), w + 2)
+    map_y = (pts[:, 1, None, None] + gy).reshape(n * (w + 2), w + 2)
+    big = cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    big = big.reshape(n, w + 2, w + 2).astype(np.float32)
+    patch = big[:, 1:-1, 1:-1].reshape(n, -1)
+    dx = (0.5 * (big[:, 1:-1, 2:] - big[:, 1:-1, :-2])).reshape(n, -1)
+    dy = (0.5 * (big[:, 2:, 1:-1] - big[:, :-2, 1:-1])).reshape(n, -1)
+    offsets = _patch_offsets(w)
+    x, y = offsets[:, 0], offsets[:, 1]
+    steepest = np.stack([dx * x, dx * y, dy * x, dy * y, dx, dy], axis=1)
+    steepest -= steepest.mean(axis=2, keepdims=True)  # invariant to a brightness offset
+    hessian = np.matmul(steepest, steepest.transpose(0, 2, 1)).astype(np.float64)
+    hessian += 1e-9 * np.trace(hessian, axis1=1, axis2=2)[:, None, None] * np.eye(6) + 1e-12 * np.eye(6)
+    template = patch - patch.mean(axis=1, keepdims=True)
+    scale = np.maximum(template.std(axis=1), 1e-3).astype(np.float32)
+    return _LiveTracks(ids, pts, template, scale, steepest, np.linalg.inv(hessian), A)
+
+
+def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float32],
+                   config: TrackerConfig) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Fit each track's first patch to ``image`` by an affine map (inverse-compositional LK).
+
+    Args:
+        image: (h, w) uint8 crop of the current frame.
+        live: the tracks; ``live.A`` is the previous frame's fit and is updated in place.
+        guess: (n, 2) float32, pixels: LK positions in ``image`` (the translation's start value).
+        config: iterations, window and the translation step (``criteria[2]``) that counts as converged.
+
+    Returns:
+        (n, 2) float64 refined positions, (n,) float64 dissimilarities, (n,) bool fit succeeded.
+    """
+    n = len(live)
+    w = config.win_size_px
+    offsets = _patch_offsets(w)
+    t = guess.astype(np.float64)
+    A = live.A.copy()
+    rms = np.full(n, np.inf)
+    valid = np.ones(n, dtype=bool)
+    active = np.arange(n)
+    eps = max(config.criteria[2], 1e-4)
+    x, y = offsets[:, 0], offsets[:, 1]
+    for _ in range(config.affine_iterations):
+        if active.size == 0:
+            break
+        m = active.size
+        every = m == n  # index only once some points have converged: fancy indexing copies
+        template = live.template if every else live.template[active]
+        steepest = live.steepest if every else live.steepest[active]
+        hessian_inv = live.hessian_inv if every else live.hessian_inv[active]
+        a = A[active].astype(np.float32)
+        ta = t[active].astype(np.float32)
+        map_x = ta[:, 0, None] + a[:, 0, 0, None] * x + a[:, 0, 1, None] * y
+        map_y = ta[:, 1, None] + a[:, 1, 0, None] * x + a[:, 1, 1, None] * y
+        warped = cv2.remap(image, map_x.reshape(m * w, w), map_y.reshape(m * w, w), cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_REPLICATE)
+        warped = warped.reshape(m, -1).astype(np.float32)
+        error = warped - warped.mean(axis=1, keepdims=True) - template
+        rms[active] = np.sqrt(np.mean(error * error, axis=1))
+        gradient = np.matmul(steepest, error[..., None])
+        step = np.matmul(hessian_inv, gradient.astype(np.float64))[..., 0]
+        sane = (np.all(np.isfinite(step), axis=1) & np.all(np.abs(step[:, :4]) < 0.5, axis=1)
+                & np.all(np.abs(step[:, 4:]) < w / 2, axis=1))
+        valid[active[~sane]] = False
+        active, step = active[sane], step[sane]
+        # Compose with the inverse of the increment: A <- A (I + D)^-1, t <- t - A_new d.
+        A_new = np.matmul(A[active], np.linalg.inv(np.eye(2) + step[:, :4].reshape(-1, 2, 2)))
+        t[active] -= np.matmul(A_new, step[:, 4:, None])[..., 0]
+        A[active] = A_new
+        active = active[np.max(np.abs(step[:, 4:]), axis=1) >= eps]
+    det = np.linalg.det(A)
+    valid &= ((det > 1.0 / _MAX_AREA_RATIO) & (det < _MAX_AREA_RATIO)
+              & (np.linalg.norm(t - guess, axis=1) <= _MAX_REFINE_SHIFT_PX))
+    live.A = A
+    return t, rms / live.scale, valid
+
+
+def track_keypoints(frames: Sequence[ImageArray], delta: FloatArray,
+                    config: TrackerConfig | None = None) -> TrackingResult:
+    """Track corners on the moving links through one sweep.
+
+    Shi–Tomasi corners are detected in the first frame inside ``moving_mask`` and followed frame to
+    frame with pyramidal Lucas–Kanade. Each step is checked forward and backward: a point whose round
+    trip misses by more than ``config.fb_max_px`` (or that LK loses, or that leaves the image) ends its
+    track there. The survivors' positions are then refined by fitting their first-frame patch with an
+    affine map, and a track whose fit residual is too large ends too. An ended track keeps its prefix
+    if it is long enough. Every ``config.redetect_every`` frames new corners are added in moving regions
+    not covered by live tracks. Tracks shorter than ``config.min_track_frames`` or that never move more
+    than ``config.min_displacement_px`` are dropped.
+
+    Args:
+        frames: F >= 2 images of one sweep, each (H, W) uint8 grey or (H, W, 3) uint8 RGB.
+        delta: (F,) float64, radians: the joint's offset from its start value in each frame.
+        config: tracker settings; ``TrackerConfig()`` if None.
+
+    Returns:
+        The kept tracks (pixels (M, 2) float64, delta (M,) float64 rad, consecutive frames) and counts
+        of what was dropped and why. A sweep where nothing moves gives no tracks, not an error.
+
+    Raises:
+        InvalidInputError: fewer than 2 frames, frames of different shapes, empty or non-uint8 images,
+            a delta that is not (F,) or not finite.
+    """
+    start_time = time.perf_counter()
+    config = TrackerConfig() if config is None else config
+    greys = _grey_frames(frames)
+    n_frames = len(greys)
+    delta = np.asarray(delta, dtype=np.float64)
+    if delta.ndim != 1 or delta.shape[0] != n_frames:
+        raise InvalidInputError(f"delta must be ({n_frames},) like the {n_frames} frames, got shape {delta.shape}")
+    if not np.all(np.isfinite(delta)):
+        raise InvalidInputError("delta contains NaN or infinite values")
+
+    mask_full = _moving_mask_u8(greys, config)
+    roi = _roi(mask_full, config)
+    if roi is None:
+        return TrackingResult([], 0, 0, 0, 0, 0, 0, time.perf_counter() - start_time)
+    x0, y0, x1, y1 = roi
+    mask = np.ascontiguousarray(mask_full[y0:y1, x0:x1])
+    width, height = x1 - x0, y1 - y0
+
+    # Per frame: the ids and positions of the tracks alive in it. Per track: why it ended.
+    record_ids: list[NDArray[np.int64]] = []
+    record_pts: list[FloatArray] = []
+    ended: list[int] = []
+
+    prev = greys[0][y0:y1, x0:x1]
+    live = _new_tracks(prev, _detect(prev, mask, np.empty((0, 2), np.float32), config.max_corners, config),
+                       0, config)
+    ended.extend([_RUNNING] * len(live))
+    record_ids.append(live.ids)
+    record_pts.append(live.pts.astype(np.float64))
+    for k in range(1, n_frames):
+        nxt = greys[k][y0:y1, x0:x1]
+        positions = np.empty((0, 2))
+        if len(live):
+            forward, ok = _lk_step(prev, nxt, live.pts, config)
+            for track_id in live.ids[~ok]:
+                ended[track_id] = _ENDED_FB
+            live, forward = live.select(ok), forward[ok]
+            positions = forward.astype(np.float64)
+            if config.affine_iterations and len(live):
+                positions, dissimilarity, ok = _refine_affine(nxt, live, forward, config)
+                ok &= dissimilarity <= config.max_dissimilarity
+                for track_id in live.ids[~ok]:
+                    ended[track_id] = _ENDED_DISSIMILAR
+                live, positions = live.select(ok), positions[ok]
+            inside = (np.all(positions >= 0, axis=1) & (positions[:, 0] <= width - 1)
+                      & (positions[:, 1] <= height - 1))
+            for track_id in live.ids[~inside]:
+                ended[track_id] = _ENDED_FB
+            live, positions = live.select(inside), positions[inside]
+            live.pts = positions.astype(np.float32)
+        if config.redetect_every and k % config.redetect_every == 0 and n_frames - k >= config.min_track_frames:
+            corners = _detect(nxt, mask, live.pts, config.max_corners - len(live), config)
+            new = _new_tracks(nxt, corners, len(ended), config)
+            ended.extend([_RUNNING] * len(new))
+            live = live.extend(new)
+            positions = np.concatenate([positions, corners.astype(np.float64)])
+        record_ids.append(live.ids)
+        record_pts.append(positions)
+        prev = nxt
+    return _assemble(record_ids, record_pts, ended, delta, (x0, y0), config, start_time)
+
+
+def _assemble(record_ids: list[NDArray[np.int64]], record_pts: list[FloatArray], ended: list[int],
+              delta: FloatArray, origin: tuple[int, int], config: TrackerConfig,
+              start_time: float) -> TrackingResult:
+    """Regroup the per-frame records into tracks, drop the short and static ones, and count."""
+    counts = {"fb": 0, "dissimilar": 0, "short": 0, "static": 0, "truncated": 0}
+    tracks: list[KeypointTrack] = []
+    if ended:
+        all_ids = np.concatenate(record_ids)
+        all_frames = np.concatenate([np.full(ids.shape[0], k) for k, ids in enumerate(record_ids)])
+        all_pts = np.concatenate(record_pts) + np.asarray(origin, dtype=np.float64)
+        order = np.argsort(all_ids, kind="stable")  # records are in frame order, so each track stays sorted
+        for rows in np.split(order, np.flatnonzero(np.diff(all_ids[order])) + 1):
+            reason = ended[int(all_ids[rows[0]])]
+            pixels = all_pts[rows]
+            if rows.shape[0] < config.min_track_frames:
+                counts[{_RUNNING: "short", _ENDED_FB: "fb", _ENDED_DISSIMILAR: "dissimilar"}[reason]] += 1
+            elif np.max(np.linalg.norm(pixels - pixels[0], axis=1)) <= config.min_displacement_px:
+                counts["static"] += 1
+            else:
+                counts["truncated"] += reason != _RUNNING
+                tracks.append(KeypointTrack(pixels, delta[all_frames[rows]]))
+    return TrackingResult(tracks, len(ended), counts["fb"], counts["dissimilar"], counts["short"], counts["static"],
+                          counts["truncated"], time.perf_counter() - start_time)

@@ -1,0 +1,74 @@
+"""arc_env.episodes: one benchmark episode runner and its resumable store."""
+
+import json
+
+import numpy as np
+import pytest
+
+from arc_env.bench.episodes import EpisodeSpec, EpisodeStore, commits_used, padded_curve, run_episodes
+from solver.errors import InvalidInputError
+
+#: A small oracle episode: no rendering of frames, a few seconds.
+SPEC = EpisodeSpec("random", pose=1, seed=0, motions=3, width=480, height=270, oracle=True)
+
+
+def test_spec_checks_and_key():
+    assert SPEC.key == "random-oracle_480x270_m3_p1_s0"
+    assert SPEC.rng_seed == 1000
+    with pytest.raises(InvalidInputError, match="unknown method 'apriltag'"):
+        EpisodeSpec("apriltag", 0, 0)
+    with pytest.raises(InvalidInputError, match="no oracle"):
+        EpisodeSpec("marker", 0, 0, oracle=True)
+    with pytest.raises(InvalidInputError):
+        EpisodeSpec("random", 0, 0, motions=0)
+
+
+def test_padded_curve_holds_the_last_estimate():
+    record = {"curve": [None, [0.1, 0.02], [0.05, 0.01]]}
+    assert padded_curve(record, 5) == [(np.inf, np.inf), (0.1, 0.02), (0.05, 0.01), (0.05, 0.01), (0.05, 0.01)]
+    assert padded_curve(record, 2) == [(np.inf, np.inf), (0.1, 0.02)]
+    assert padded_curve({"curve": []}, 2) == [(np.inf, np.inf)] * 2
+
+
+@pytest.fixture(scope="module")
+def stored(tmp_path_factory):
+    store = EpisodeStore(tmp_path_factory.mktemp("episodes"))
+    seen = []
+    records = run_episodes([SPEC], store, on_record=lambda r, from_store: seen.append(from_store))
+    return store, records[SPEC], seen
+
+
+def test_a_run_is_recorded_and_stored(stored):
+    store, record, seen = stored
+    assert seen == [False]
+    assert record["spec"]["method"] == "random" and record["in_collision"] == 0
+    assert len(record["curve"]) == SPEC.motions and len(record["planning"]) >= SPEC.motions
+    assert record["seconds"]["total"] > 0
+    assert json.loads(store.path(SPEC).read_text()) == json.loads(json.dumps(record))
+
+
+def test_a_stored_run_is_reused_not_rerun(stored):
+    store, record, _ = stored
+    seen = []
+    again = run_episodes([SPEC], store, on_record=lambda r, from_store: seen.append(from_store))
+    assert seen == [True]
+    assert again[SPEC] == json.loads(json.dumps(record))
+    assert commits_used(again.values()).endswith("(1 runs)")
+
+
+def test_a_foreign_or_broken_file_is_not_reused(stored, tmp_path):
+    store = EpisodeStore(tmp_path)
+    other = EpisodeSpec("random", pose=1, seed=0, motions=3, width=480, height=270, oracle=True)
+    store.path(other).write_text("{not json")
+    assert store.get(other) is None
+    _, record, _ = stored
+    foreign = dict(record, spec=dict(record["spec"], seed=7))
+    store.path(other).write_text(json.dumps(foreign))
+    assert store.get(other) is None
+
+
+def test_same_spec_same_record_fields(stored):
+    """Episodes are deterministic: a rerun gives the same errors (timings differ)."""
+    _, record, _ = stored
+    rerun = run_episodes([SPEC])[SPEC]
+    assert rerun["curve"] == json.loads(json.dumps(record))["curve"]

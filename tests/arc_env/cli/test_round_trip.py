@@ -1,0 +1,199 @@
+"""Simulation -> recording -> ``arc-calib calibrate`` -> the true pose, within a bound.
+
+One recording is rendered per module (960x540 -- the speckle is sub-pixel below that -- 9 random
+motions, seed 0, PNG frames) and two motions are added whose joints.csv says no joint / two joints
+move: they must be pruned with their reason while the rest calibrates. The second variant is made
+from the same rendered frames, so both calibrations see the same motions: resampled through a
+pincushion distortion (which maps every output pixel inside the render, so camera.json keeps the same
+K and gains ``dist``) and encoded as one MP4 per motion -- a distorted camera and lossy video at once,
+to keep the suite's time down (PNG-vs-MP4 reading alone is tested in test_recording.py).
+"""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from arc_env.cli import main
+from arc_env.robot.overlay import RobotProjector
+from arc_env.robot.recording import read_recording, write_video
+from arc_env.sim.distortion import Distorter
+from arc_env.sim.record import RecordSettings, ground_truth_path, record_episode
+from arc_env.sim.scene import Scene, SceneConfig
+from solver.frames import pose_errors, transform_from_rt
+from solver.observations import CameraIntrinsics
+from tests.support.joints_csv import read_joints_csv, write_joints_csv
+
+#: 9 tracked motions at 960x540 reach about 3 mrad / 3 mm on this seed; a wrong pose, or one that
+#: ignored the lens distortion, is off by centimetres and degrees. Bounds as the env's tracked episode.
+ROUND_TRIP_MAX_ROT_RAD = 0.01
+ROUND_TRIP_MAX_TRANS_M = 0.01
+#: The overlay's projected mask against MuJoCo's rendered mask at the true pose (same geometry; they
+#: differ only by rasterization at the silhouette, a pixel wide).
+OVERLAY_MIN_IOU = 0.9
+PINCUSHION = [0.08, 0.0, 0.0, 0.0, 0.0]
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    root = tmp_path_factory.mktemp("round_trip")
+    out = root / "rec"
+    record_episode(RecordSettings(out=out, motions=9, seed=0, width=960, height=540))
+    motions = out / "motions"
+    for name, mutate in (("900", _no_joint_moves), ("901", _two_joints_move)):
+        shutil.copytree(motions / "000", motions / name)
+        mutate(motions / name / "joints.csv")
+    return out
+
+
+def _no_joint_moves(path):
+    header, rows = read_joints_csv(path)
+    write_joints_csv(path, header, [[k, *rows[0][1:]] for k in range(len(rows))])
+
+
+def _two_joints_move(path):
+    header, rows = read_joints_csv(path)
+    for k, r in enumerate(rows):
+        r[7] += 0.5 * k / len(rows)  # joint 6 turns along with the recorded one
+    write_joints_csv(path, header, rows)
+
+
+def _derive(src, dst, frame_fn=None, video=False, dist=None):
+    """A copy of a recording with every frame passed through frame_fn, as PNGs or one MP4 per motion."""
+    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("frames", "robot"))
+    (dst / "robot.json").write_text(json.dumps({"model": str(src / "robot" / "robot.xml"), "base": "panda0_link0"}))
+    if dist is not None:
+        camera = json.loads((src / "camera.json").read_text())
+        (dst / "camera.json").write_text(json.dumps({**camera, "dist": dist}))
+    for motion in sorted((src / "motions").iterdir()):
+        pngs = sorted((motion / "frames").iterdir())
+        frames = [cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) for p in pngs]
+        if frame_fn is not None:
+            frames = [frame_fn(f) for f in frames]
+        target = dst / "motions" / motion.name
+        if video:
+            write_video(target / "video.mp4", frames)
+        else:
+            (target / "frames").mkdir()
+            for p, f in zip(pngs, frames, strict=True):
+                cv2.imwrite(str(target / "frames" / p.name), cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    return dst
+
+
+def _calibrate(rec, out_dir, capsys, *extra):
+    out = out_dir / "result.json"
+    code = main(["calibrate", str(rec), "--output", str(out), "--quiet",
+                 "--ground-truth", str(ground_truth_path(rec)), *extra])
+    text = capsys.readouterr().out
+    assert code == 0, text
+    return json.loads(out.read_text()), text
+
+
+def _assert_close_to_truth(result, truth_file):
+    T_true = np.asarray(json.loads(truth_file.read_text())["T_camera_base"])
+    rot, trans = pose_errors(np.asarray(result["T_camera_base"]), T_true)
+    assert rot < ROUND_TRIP_MAX_ROT_RAD and trans < ROUND_TRIP_MAX_TRANS_M, (rot, trans)
+    return rot, trans
+
+
+def test_png_round_trip_with_pruned_motions_exports_and_overlay(recording, tmp_path, capsys):
+    result, text = _calibrate(recording, tmp_path, capsys, "--overlay", str(tmp_path / "overlay"),
+                              "--base-frame", "panda_link0")
+    _assert_close_to_truth(result, ground_truth_path(recording))
+    assert "true error" in text and "wrote" in text
+    per_motion = {m["motion"]: m for m in result["per_motion"]}
+    assert not per_motion["900"]["accepted"] and per_motion["900"]["reason"].startswith("no joint moves")
+    assert not per_motion["901"]["accepted"] and per_motion["901"]["reason"].startswith("2 joints move")
+    assert result["motions"]["accepted"] >= 4
+    T = np.asarray(result["T_camera_base"])
+    np.testing.assert_allclose(np.asarray(result["T_base_camera"]) @ T, np.eye(4), atol=1e-9)
+    q = result["quaternion"]
+    from scipy.spatial.transform import Rotation
+
+    np.testing.assert_allclose(Rotation.from_quat(q).as_matrix(), T[:3, :3], atol=1e-9)
+    cov = np.asarray(result["covariance"])
+    assert cov.shape == (6, 6) and np.allclose(cov, cov.T)
+    np.testing.assert_allclose(result["std"]["translation_mm"], np.sqrt(np.diag(cov)[3:]) * 1e3)
+    assert result["frames"] == {"parent": "panda_link0", "child": "camera_color_optical_frame",
+                                "child_is": result["frames"]["child_is"]}
+    # the exports beside it carry the inverse, base -> optical frame
+    import yaml
+
+    calib = yaml.safe_load((tmp_path / "result.calib").read_text())["transform"]
+    t = [calib["translation"][k] for k in "xyz"]
+    r = [calib["rotation"][k] for k in "xyzw"]
+    np.testing.assert_allclose(transform_from_rt(Rotation.from_quat(r).as_matrix(), t) @ T, np.eye(4), atol=1e-7)
+    tf = (tmp_path / "result.tf.sh").read_text()
+    assert "--frame-id panda_link0 --child-frame-id camera_color_optical_frame" in tf
+    assert (tmp_path / "result.urdf.xml").is_file()
+    overlays = sorted((tmp_path / "overlay").glob("overlay_motion_*.png"))
+    assert 1 <= len(overlays) <= 4
+    assert cv2.imread(str(overlays[0])).shape == (540, 960, 3)
+
+
+def test_overlay_projection_matches_the_rendered_robot(recording):
+    rec = read_recording(recording)
+    T_true = np.asarray(json.loads(ground_truth_path(recording).read_text())["T_camera_base"])
+    m = rec.motions[0]
+    q = m.q_start.copy()
+    q[m.joint] += m.delta[len(m.delta) // 2]
+    projected = RobotProjector(rec.robot, rec.intrinsics).mask(q, T_true)
+    # the simulator renders the same robot model (the recording's side never renders)
+    scene = Scene(SceneConfig(robot=rec.robot.source, width=rec.intrinsics.width, height=rec.intrinsics.height,
+                              fx=float(rec.intrinsics.K[0, 0]), camera_mount=False))
+    try:
+        scene.robot.set_q(q)
+        rendered = scene.robot_mask(T_true)
+    finally:
+        scene.close()
+    iou = (projected & rendered).sum() / (projected | rendered).sum()
+    assert rendered.sum() > 1000 and iou > OVERLAY_MIN_IOU, iou
+
+
+def test_distorted_camera_mp4_round_trip(recording, tmp_path, capsys):
+    camera = json.loads((recording / "camera.json").read_text())
+    target = CameraIntrinsics(K=np.asarray(camera["K"]), dist=np.asarray(PINCUSHION), width=960, height=540)
+    distort = Distorter(target)
+    np.testing.assert_allclose(distort.pinhole.K, target.K)  # pincushion: the render's own K suffices
+    rec = _derive(recording, tmp_path / "distorted", frame_fn=distort, video=True, dist=PINCUSHION)
+    assert not list(rec.rglob("*.png")) and len(list(rec.rglob("video.mp4"))) == 11
+    shutil.copy(ground_truth_path(recording), ground_truth_path(rec))
+    result, _ = _calibrate(rec, tmp_path, capsys)
+    _assert_close_to_truth(result, ground_truth_path(rec))
+
+
+#: A GL backend that cannot start here: GLFW needs a display, and DISPLAY is removed.
+NO_GL = {"MUJOCO_GL": "glfw"}
+
+
+def _without_gl() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    return {**env, **NO_GL}
+
+
+def test_calibrate_needs_no_gl_context(recording, tmp_path):
+    root = Path(__file__).resolve().parents[3]
+    # the backend really cannot start: building a renderer fails
+    probe = ("from arc_env.sim.scene import Scene, SceneConfig\n"
+             "from arc_env.sim.rendering import RenderingError\n"
+             "try:\n    Scene(SceneConfig(width=64, height=48)).render()\nexcept RenderingError:\n    print('no GL')")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=root, env=_without_gl(),
+                         timeout=120)
+    assert out.stdout.strip() == "no GL", out.stdout + out.stderr
+    # calibrate succeeds and never loads the simulator, even with --overlay (the model is projected, not rendered)
+    result, overlay = tmp_path / "result.json", tmp_path / "overlay"
+    code = ("import sys\nfrom arc_env.cli import main\n"
+            f"code = main(['calibrate', {str(recording)!r}, '--output', {str(result)!r}, '--quiet', "
+            f"'--overlay', {str(overlay)!r}])\n"
+            "print('SIM', any(m.startswith('arc_env.sim') for m in sys.modules))\nsys.exit(code)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, env=_without_gl(),
+                         timeout=600)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "SIM False" in out.stdout and result.is_file() and list(overlay.glob("overlay_motion_*.png"))
+    assert "empty prefix" not in out.stdout + out.stderr and not (root / "MUJOCO_LOG.TXT").exists()

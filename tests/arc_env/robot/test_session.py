@@ -1,0 +1,69 @@
+"""The one calibration loop: refusals leave the robot where it is, drivers' bad answers are named errors."""
+
+import numpy as np
+import pytest
+
+from arc_env.robot.driver import Sweep
+from arc_env.robot.model import RobotModel, RobotSource
+from arc_env.robot.session import CalibrationSession, DriverExecutor
+from solver.errors import InvalidInputError
+from solver.observations import CameraIntrinsics
+
+CAMERA = CameraIntrinsics.from_fov(200.0, 320, 240)
+
+
+class _BadDriver:
+    """A driver whose sweep returns joint readings of the wrong shape."""
+
+    robot = RobotSource()
+    joint_names = tuple(f"panda0_joint{i}" for i in range(1, 8))
+    intrinsics = CAMERA
+    joint_limits = (np.full(7, -3.0), np.full(7, 3.0))
+
+    def __init__(self):
+        self.moved_to = None
+
+    def move_to(self, q):
+        self.moved_to = np.asarray(q)
+
+    def sweep(self, joint, delta):
+        frames = [np.zeros((240, 320, 3), np.uint8)] * 4
+        return Sweep(frames, np.zeros((4, 6)))  # 6 joints, not 7
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return RobotModel.load(RobotSource())
+
+
+def test_a_refused_motion_leaves_the_robot_unmoved_and_is_counted(robot):
+    driver = _BadDriver()
+    session = CalibrationSession(robot, CAMERA, DriverExecutor(driver))
+    session.reset(np.random.default_rng(0))
+    before = robot.q
+    q = robot.home.copy()
+    q[0] = robot.upper[0] + 0.5
+    result = session.step(q, 1, 0.5)
+    assert "outside the limits" in result.refused and session.n_refused == 1 and session.n_motions == 0
+    assert driver.moved_to is None and session.executed == []
+    np.testing.assert_array_equal(robot.q, before)
+    assert "below the minimum" in session.step(robot.home, 1, 0.05).refused
+
+
+def test_a_malformed_sweep_is_a_named_error(robot):
+    session = CalibrationSession(robot, CAMERA, DriverExecutor(_BadDriver()))
+    session.reset(np.random.default_rng(0))
+    q = robot.home.copy()
+    with pytest.raises(InvalidInputError, match=r"driver sweep must return >= 3 frames and finite positions"):
+        session.step(q, 3, 0.4)
+
+
+def test_a_session_without_executor_only_observes(robot):
+    session = CalibrationSession(robot, CAMERA)
+    with pytest.raises(InvalidInputError, match="reset"):
+        session.step(robot.home, 3, 0.4)
+    session.reset()
+    with pytest.raises(InvalidInputError, match="no executor"):
+        session.step(robot.home, 3, 0.4)
+    outcome = session.observe(robot.home, 3, [])
+    assert outcome.report is not None and not outcome.accepted

@@ -1,0 +1,440 @@
+"""Tests of arc_env/robot/tracking.py: moving mask, Shi–Tomasi + LK tracks against synthetic sweeps.
+
+The sweeps are built here with numpy and cv2.warpAffine / cv2.warpPerspective, independently of the
+tracker: a static blurred-noise background and a textured plate that turns about a known centre, either
+in the image plane or on a tilted plane seen by a pinhole camera (points then trace ellipses). The plate
+is off-centre, so it sweeps over background corners that the tracker must not keep. Ground truth maps a
+track's first point through the known transforms at the track's own delta values (the plate turns by
+exactly delta), so it checks positions and the delta bookkeeping at once.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import pytest
+
+from arc_env.robot.tracking import TrackerConfig, TrackingResult, moving_mask, track_keypoints
+from solver.errors import InvalidInputError
+from solver.observations import KeypointTrack
+
+#: Accuracy the tracker must reach on the noise-free sweeps (the brief's figures). The renderings'
+#: own error (bicubic texture warp, uint8 rounding) is ~0.01 px; measured: median ~0.05, max ~0.3 px.
+MEDIAN_TOL_PX = 0.2
+MAX_TOL_PX = 1.0
+
+#: Translation-only LK must be measurably worse over the same sweep (it drifts 1-2 px), or the
+#: accuracy test above would not be able to tell the refinement from plain LK.
+PLAIN_LK_MIN_MEDIAN_PX = 0.5
+
+#: A sweep: 40 frames, the plate turns by 0.8 rad with a smooth start and stop (like a joint move).
+N_FRAMES = 40
+SPAN_RAD = 0.8
+
+#: Small images for speed; the plate turns about CENTRE and is a disc of PLATE_RADIUS about PLATE_CENTRE.
+SIZE = (240, 320)  # (H, W)
+CENTRE = np.array([160.0, 120.0])
+PLATE_CENTRE = np.array([200.0, 120.0])
+PLATE_RADIUS = 60.0
+
+#: Tracker settings for the 320x240 sweeps: denser corners than the 1080p defaults.
+SMALL = TrackerConfig(max_corners=200, min_distance_px=7.0)
+
+PointMap = Callable[[np.ndarray, float, float], np.ndarray]
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A rendered sweep and its ground truth.
+
+    Attributes:
+        frames: F (H, W) uint8 images.
+        delta: (F,) float64, rad: the plate's turn in each frame.
+        move: move(p, d_from, d_to): where the plate point at pixel p (2,) when the plate had turned by
+            d_from is when it has turned by d_to.
+        plate_distance: plate_distance(p, d): distance of pixel p from the plate's centre, in plate
+            units, when the plate has turned by d (inside the plate when < PLATE_RADIUS).
+    """
+
+    frames: list[np.ndarray]
+    delta: np.ndarray
+    move: PointMap
+    plate_distance: Callable[[np.ndarray, float], float]
+
+
+def smooth_delta(n: int = N_FRAMES, span: float = SPAN_RAD) -> np.ndarray:
+    """(n,) rad: a smoothstep from 0 to span (slow start and stop)."""
+    s = np.linspace(0.0, 1.0, n)
+    return span * s * s * (3.0 - 2.0 * s)
+
+
+def noise_texture(rng: np.random.Generator, shape: tuple[int, int], sigma: float = 2.0) -> np.ndarray:
+    """(H, W) float32 grey levels: blurred uniform noise, mean 128, standard deviation 50 (has corners)."""
+    image = cv2.GaussianBlur(rng.uniform(0.0, 255.0, shape).astype(np.float32), (0, 0), sigma)
+    return np.clip((image - image.mean()) / image.std() * 50.0 + 128.0, 0.0, 255.0).astype(np.float32)
+
+
+def disc(shape: tuple[int, int], centre: np.ndarray, radius: float) -> np.ndarray:
+    """(H, W) float32 coverage of a disc with a slightly soft edge."""
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]]
+    inside = ((xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 <= radius**2).astype(np.float32)
+    return cv2.GaussianBlur(inside, (0, 0), 0.7)
+
+
+def composite(background: np.ndarray, texture: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(alpha * texture + (1.0 - alpha) * background), 0, 255).astype(np.uint8)
+
+
+def apply(H: np.ndarray, p: np.ndarray) -> np.ndarray:
+    q = H @ np.array([p[0], p[1], 1.0])
+    return q[:2] / q[2]
+
+
+def rotation_about(centre: np.ndarray, angle: float) -> np.ndarray:
+    """(3, 3): turn image points about centre by angle rad (counter-clockwise on screen, y down)."""
+    c, s = np.cos(angle), np.sin(angle)
+    R = np.array([[c, s], [-s, c]])
+    M = np.eye(3)
+    M[:2, :2] = R
+    M[:2, 2] = centre - R @ centre
+    return M
+
+
+def in_plane_sweep(rng: np.random.Generator, delta: np.ndarray | None = None,
+                   size: tuple[int, int] = SIZE, scale: float = 1.0) -> Sweep:
+    """The plate turning in the image plane (cv2.warpAffine of its texture and coverage)."""
+    delta = smooth_delta() if delta is None else delta
+    centre, plate_centre, radius = CENTRE * scale, PLATE_CENTRE * scale, PLATE_RADIUS * scale
+    background = noise_texture(rng, size)
+    texture = noise_texture(rng, size)
+    alpha = disc(size, plate_centre, radius)
+    frames = []
+    for d in delta:
+        M = rotation_about(centre, d)[:2]
+        frames.append(composite(background,
+                                cv2.warpAffine(texture, M, size[::-1], flags=cv2.INTER_CUBIC),
+                                cv2.warpAffine(alpha, M, size[::-1], flags=cv2.INTER_LINEAR)))
+
+    def move(p: np.ndarray, d_from: float, d_to: float) -> np.ndarray:
+        return apply(rotation_about(centre, d_to) @ np.linalg.inv(rotation_about(centre, d_from)), p)
+
+    def plate_distance(p: np.ndarray, d: float) -> float:
+        return float(np.linalg.norm(move(p, d, 0.0) - plate_centre) / scale)
+
+    return Sweep(frames, delta, move, plate_distance)
+
+
+#: The pinhole camera of the perspective sweep (320x240) and the plate's plane: 1 m away, tilted 50 deg.
+FX = 300.0
+K = np.array([[FX, 0.0, 159.5], [0.0, FX, 119.5], [0.0, 0.0, 1.0]])
+TILT_RAD = np.deg2rad(50.0)
+PLANE_ORIGIN = np.array([0.0, 0.0, 1.0])  # m, camera frame: where the turning axis meets the plane
+METRES_PER_TEXEL = 0.003
+TEXTURE_SIZE = (300, 300)
+
+
+def plane_homography(angle: float) -> np.ndarray:
+    """(3, 3): texture pixels -> image pixels with the plate turned by angle rad about its normal.
+
+    Texture pixel (s, t) is the plane point ((s - sc) m, (t - tc) m, 0) in the plate frame, turned about
+    the plate's z axis (its normal, through the texture centre), then placed by R_camera_plane (a tilt
+    about the camera x axis) at PLANE_ORIGIN, and projected by K.
+    """
+    c, s = np.cos(angle), np.sin(angle)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    ct, st = np.cos(TILT_RAD), np.sin(TILT_RAD)
+    R_camera_plane = np.array([[1.0, 0.0, 0.0], [0.0, ct, -st], [0.0, st, ct]])
+    R = R_camera_plane @ turn
+    sc, tc = (TEXTURE_SIZE[1] - 1) / 2, (TEXTURE_SIZE[0] - 1) / 2
+    m = METRES_PER_TEXEL
+    columns = np.column_stack([m * R[:, 0], m * R[:, 1], PLANE_ORIGIN - m * sc * R[:, 0] - m * tc * R[:, 1]])
+    return K @ columns
+
+
+def perspective_sweep(rng: np.random.Generator, delta: np.ndarray | None = None) -> Sweep:
+    """The plate turning on a tilted plane seen in perspective (cv2.warpPerspective)."""
+    delta = smooth_delta() if delta is None else delta
+    background = noise_texture(rng, SIZE)
+    texture = noise_texture(rng, TEXTURE_SIZE, sigma=2.5)
+    centre_tex = np.array([(TEXTURE_SIZE[1] - 1) / 2 + 45.0, (TEXTURE_SIZE[0] - 1) / 2])
+    radius_tex = 70.0
+    alpha = disc(TEXTURE_SIZE, centre_tex, radius_tex)
+    frames = []
+    for d in delta:
+        H = plane_homography(d)
+        frames.append(composite(background,
+                                cv2.warpPerspective(texture, H, SIZE[::-1], flags=cv2.INTER_CUBIC),
+                                cv2.warpPerspective(alpha, H, SIZE[::-1], flags=cv2.INTER_LINEAR)))
+
+    def move(p: np.ndarray, d_from: float, d_to: float) -> np.ndarray:
+        return apply(plane_homography(d_to) @ np.linalg.inv(plane_homography(d_from)), p)
+
+    def plate_distance(p: np.ndarray, d: float) -> float:
+        # In texels, rescaled so that the plate's edge is at PLATE_RADIUS like the in-plane sweep.
+        texel = apply(np.linalg.inv(plane_homography(d)), p)
+        return float(np.linalg.norm(texel - centre_tex) / radius_tex * PLATE_RADIUS)
+
+    return Sweep(frames, delta, move, plate_distance)
+
+
+def track_errors(track: KeypointTrack, sweep: Sweep) -> np.ndarray:
+    """(M,) px: distance of each tracked point from the ground truth of the track's first point."""
+    truth = np.array([sweep.move(track.pixels[0], track.delta[0], d) for d in track.delta])
+    return np.linalg.norm(track.pixels - truth, axis=1)
+
+
+def max_errors(result: TrackingResult, sweep: Sweep) -> np.ndarray:
+    return np.array([track_errors(t, sweep).max() for t in result.tracks])
+
+
+def assert_counts_add_up(result: TrackingResult) -> None:
+    assert result.n_detected == (len(result.tracks) + result.n_dropped_fb + result.n_dropped_dissimilar
+                                 + result.n_dropped_short + result.n_dropped_static)
+
+
+SWEEPS = {"in_plane": in_plane_sweep, "perspective": perspective_sweep}
+
+
+@pytest.fixture(scope="module", params=list(SWEEPS), ids=list(SWEEPS))
+def sweep(request) -> Sweep:
+    return SWEEPS[request.param](np.random.default_rng(7))
+
+
+@pytest.fixture(scope="module")
+def tracked(sweep) -> TrackingResult:
+    return track_keypoints(sweep.frames, sweep.delta, SMALL)
+
+
+# --- accuracy -------------------------------------------------------------------------------------
+
+
+def test_tracks_follow_ground_truth(sweep, tracked):
+    assert len(tracked.tracks) >= 30
+    errors = np.concatenate([track_errors(t, sweep) for t in tracked.tracks])
+    assert np.median(errors) < MEDIAN_TOL_PX
+    assert errors.max() < MAX_TOL_PX
+
+
+def test_tracks_are_long_and_move(sweep, tracked):
+    lengths = np.array([len(t) for t in tracked.tracks])
+    assert lengths.min() >= SMALL.min_track_frames
+    assert np.median(lengths) == N_FRAMES  # most corners survive the whole sweep
+    for t in tracked.tracks:
+        assert np.max(np.linalg.norm(t.pixels - t.pixels[0], axis=1)) > SMALL.min_displacement_px
+
+
+def test_perspective_tracks_are_ellipses_not_circles(rng):
+    # The perspective sweep must really be perspective: the ground-truth path of a plate point is an
+    # ellipse with a clearly unequal aspect (cos 50 deg = 0.64), or that test would repeat the in-plane one.
+    full_turn = np.linspace(0.0, 2.0 * np.pi, 73)
+    path = np.array([apply(plane_homography(d), np.array([230.0, 150.0])) for d in full_turn])
+    extent = path.max(axis=0) - path.min(axis=0)
+    assert extent[1] / extent[0] < 0.8
+
+
+def test_no_tracks_on_static_background(sweep, tracked):
+    # Corners of the background the plate sweeps over are detected (the moving mask covers them) ...
+    assert tracked.n_dropped_static + tracked.n_dropped_dissimilar + tracked.n_dropped_fb > 0
+    # ... but every kept track starts on the plate.
+    for t in tracked.tracks:
+        assert sweep.plate_distance(t.pixels[0], t.delta[0]) < PLATE_RADIUS
+
+
+def test_translation_only_lk_drifts(sweep):
+    # Teeth for the accuracy test: plain LK (no affine refinement) on the same sweep misses the ground
+    # truth by far more than the tolerance, even when only the tracks that start on the plate count.
+    result = track_keypoints(sweep.frames, sweep.delta, TrackerConfig(max_corners=200, min_distance_px=7.0,
+                                                                      affine_iterations=0))
+    on_plate = [t for t in result.tracks if sweep.plate_distance(t.pixels[0], t.delta[0]) < PLATE_RADIUS - 12]
+    errors = np.array([track_errors(t, sweep).max() for t in on_plate])
+    assert np.median(errors) > PLAIN_LK_MIN_MEDIAN_PX
+
+
+def test_counts_add_up(tracked):
+    assert_counts_add_up(tracked)
+    assert tracked.seconds > 0
+
+
+# --- delta bookkeeping ----------------------------------------------------------------------------
+
+
+def test_delta_is_carried_through(rng):
+    # Uneven steps, so a track whose delta were shifted by a frame would miss the ground truth.
+    delta = np.concatenate([[0.0], np.cumsum(rng.uniform(0.005, 0.04, N_FRAMES - 1))])
+    sweep = in_plane_sweep(rng, delta)
+    result = track_keypoints(sweep.frames, delta, SMALL)
+    starts = []
+    for t in result.tracks:
+        (first,) = np.flatnonzero(delta == t.delta[0])
+        np.testing.assert_array_equal(t.delta, delta[first:first + len(t)])
+        starts.append(first)
+    assert min(starts) == 0 and max(starts) > 0  # re-detected tracks start later and are checked too
+    assert np.max(max_errors(result, sweep)) < MAX_TOL_PX
+
+
+def test_tracks_feed_the_solver_types(tracked):
+    for t in tracked.tracks:
+        assert isinstance(t, KeypointTrack)
+        assert t.pixels.dtype == np.float64 and t.pixels.shape == (len(t), 2)
+        assert t.delta.dtype == np.float64 and t.delta.shape == (len(t),)
+
+
+# --- failures the checks must catch ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize("affine_iterations", [0, 10], ids=["fb_only", "fb_and_affine"])
+def test_corrupted_frame_ends_tracks(rng, affine_iterations):
+    sweep = in_plane_sweep(rng)
+    bad = 25
+    frames = list(sweep.frames)
+    frames[bad] = rng.integers(0, 256, SIZE, dtype=np.uint8)
+    config = TrackerConfig(max_corners=200, min_distance_px=7.0, redetect_every=0,
+                           affine_iterations=affine_iterations)
+    result = track_keypoints(frames, sweep.delta, config)
+    # Every track started in frame 0 (no re-detection) and none reaches the bad frame; the corners that
+    # were still alive before it end exactly there.
+    for t in result.tracks:
+        assert len(t) <= bad
+        np.testing.assert_array_equal(t.delta, sweep.delta[:len(t)])
+    assert sum(len(t) == bad for t in result.tracks) >= 30
+    assert result.n_truncated == len(result.tracks)
+    assert_counts_add_up(result)
+
+
+def test_fb_check_ends_tracks_without_affine_check(rng):
+    # The noise frame must be caught by the forward-backward check itself: with a huge fb threshold
+    # and no affine check, the tracks run through it (so the test above really exercises the fb check).
+    sweep = in_plane_sweep(rng)
+    frames = list(sweep.frames)
+    frames[25] = rng.integers(0, 256, SIZE, dtype=np.uint8)
+    lax = TrackerConfig(max_corners=200, min_distance_px=7.0, redetect_every=0, affine_iterations=0,
+                        fb_max_px=1e6)
+    result = track_keypoints(frames, sweep.delta, lax)
+    assert max(len(t) for t in result.tracks) > 25
+
+
+def test_static_sweep_gives_no_tracks(rng):
+    still = noise_texture(rng, SIZE).astype(np.uint8)
+    result = track_keypoints([still] * 10, np.linspace(0.0, 0.5, 10))
+    assert result.tracks == [] and result.n_detected == 0
+    assert_counts_add_up(result)
+
+
+def test_static_sweep_with_sensor_noise_gives_no_tracks(rng):
+    # Noise under the motion threshold never reaches detection; noise over it does, but the corners
+    # found there do not move and are dropped as static.
+    still = noise_texture(rng, SIZE)
+    frames = [np.clip(np.rint(still + rng.normal(0.0, 2.0, SIZE)), 0, 255).astype(np.uint8) for _ in range(12)]
+    quiet = track_keypoints(frames, np.zeros(12), SMALL)
+    assert quiet.tracks == [] and quiet.n_detected == 0
+    noisy = track_keypoints(frames, np.zeros(12), TrackerConfig(motion_threshold=3, mask_open_px=0))
+    assert noisy.tracks == [] and noisy.n_detected > 0
+    assert_counts_add_up(noisy)
+
+
+# --- moving mask ----------------------------------------------------------------------------------
+
+
+def test_moving_mask_covers_the_swept_plate_only(rng):
+    sweep = in_plane_sweep(rng)
+    mask = moving_mask(sweep.frames, SMALL)
+    assert mask.shape == SIZE and mask.dtype == np.bool_
+    alpha = disc(SIZE, PLATE_CENTRE, PLATE_RADIUS)
+    swept = np.zeros(SIZE, dtype=bool)
+    for d in sweep.delta:
+        swept |= cv2.warpAffine(alpha, rotation_about(CENTRE, d)[:2], SIZE[::-1]) > 0.5
+    assert mask[swept].mean() > 0.98
+    reach = cv2.dilate(swept.astype(np.uint8), np.ones((2 * SMALL.mask_dilate_px + 3,) * 2, np.uint8)) > 0
+    assert not np.any(mask & ~reach)
+
+
+def test_moving_mask_accepts_rgb(rng):
+    sweep = in_plane_sweep(rng, smooth_delta(6))
+    rgb = [np.repeat(f[..., None], 3, axis=2) for f in sweep.frames]
+    np.testing.assert_array_equal(moving_mask(rgb), moving_mask(sweep.frames))
+
+
+def test_rgb_frames_give_the_same_tracks(rng):
+    sweep = in_plane_sweep(rng, smooth_delta(15, 0.3))
+    rgb = [np.repeat(f[..., None], 3, axis=2) for f in sweep.frames]
+    grey_result = track_keypoints(sweep.frames, sweep.delta, SMALL)
+    rgb_result = track_keypoints(rgb, sweep.delta, SMALL)
+    assert len(grey_result.tracks) == len(rgb_result.tracks) > 0
+    for a, b in zip(grey_result.tracks, rgb_result.tracks, strict=True):
+        np.testing.assert_array_equal(a.pixels, b.pixels)
+
+
+# --- full resolution ------------------------------------------------------------------------------
+
+
+def test_full_hd_sweep(rng):
+    # One 1920x1080 sweep through the default settings (timing-free; the figure is in the report).
+    delta = smooth_delta(12, 0.3)
+    sweep = in_plane_sweep(rng, delta, size=(1080, 1920), scale=4.5)
+    result = track_keypoints(sweep.frames, delta)
+    assert len(result.tracks) >= 100
+    errors = np.concatenate([track_errors(t, sweep) for t in result.tracks])
+    assert np.median(errors) < MEDIAN_TOL_PX and errors.max() < MAX_TOL_PX
+
+
+# --- input checks ---------------------------------------------------------------------------------
+
+
+def _frames(n: int = 3, shape: tuple[int, ...] = (24, 32)) -> list[np.ndarray]:
+    return [np.zeros(shape, np.uint8) for _ in range(n)]
+
+
+@pytest.mark.parametrize(
+    ("frames", "delta", "match"),
+    [
+        (_frames(1), np.zeros(1), "at least 2 frames"),
+        ([], np.zeros(0), "at least 2 frames"),
+        (_frames(2) + _frames(1, (24, 31)), np.zeros(3), "frame 2 has shape"),
+        (_frames(3), np.zeros(4), r"delta must be \(3,\)"),
+        (_frames(3), np.zeros((3, 1)), r"delta must be \(3,\)"),
+        (_frames(3), np.array([0.0, np.nan, 0.1]), "NaN"),
+        (_frames(3, (0, 32)), np.zeros(3), "frame 0 is empty"),
+        ([np.zeros((24, 32), np.float32)] * 3, np.zeros(3), "must be uint8"),
+        (_frames(3, (24, 32, 4)), np.zeros(3), r"\(H, W, 3\) RGB"),
+        (np.zeros(5, np.uint8), np.zeros(5), r"\(H, W\) grey"),
+    ],
+    ids=["one_frame", "no_frames", "shape_mismatch", "delta_length", "delta_2d", "delta_nan", "empty_image",
+         "float_image", "four_channels", "scalar_frames"],
+)
+def test_bad_input_raises(frames, delta, match):
+    with pytest.raises(InvalidInputError, match=match):
+        track_keypoints(frames, delta)
+
+
+def test_moving_mask_rejects_bad_input():
+    with pytest.raises(InvalidInputError, match="at least 2 frames"):
+        moving_mask(_frames(1))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"win_size_px": 20}, "win_size_px must be odd"),
+        ({"quality_level": 0.0}, "quality_level"),
+        ({"fb_max_px": 0.0}, "fb_max_px"),
+        ({"min_track_frames": 1}, "min_track_frames"),
+        ({"redetect_every": -1}, "redetect_every"),
+        ({"criteria": (3, 0, 0.01)}, "criteria"),
+        ({"max_dissimilarity": -1.0}, "max_dissimilarity"),
+    ],
+    ids=lambda v: str(v) if isinstance(v, dict) else "",
+)
+def test_bad_config_raises(kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        TrackerConfig(**kwargs)
+
+
+def test_tracking_never_imports_mujoco():
+    code = "import sys, arc_env.robot.tracking; print('mujoco' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

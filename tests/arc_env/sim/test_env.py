@@ -1,0 +1,154 @@
+"""ArcCalib-v0: the Gymnasium contract, refusals, determinism and a short calibration episode."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from arc_env.sim.env import ArcCalibEnv, EnvConfig
+from arc_env.sim.scene import Obstacle, SceneConfig
+from planners.random_planner import RandomPlanner
+
+SMALL = SceneConfig(width=320, height=180)
+#: Reduced-resolution episode (960x540, 10 random motions, fixed seed; it reaches a few mm and a few
+#: mrad): bounds well below a wrong pose (centimetres, degrees), with room for platform differences.
+EPISODE_MAX_ROT_RAD = 0.01
+EPISODE_MAX_TRANS_M = 0.01
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = ArcCalibEnv(EnvConfig(scene=SMALL, max_motions=5))
+    yield e
+    e.close()
+
+
+def test_registered_and_passes_the_gymnasium_checker():
+    e = gym.make("ArcCalib-v0", config=EnvConfig(scene=SMALL, max_motions=3))
+    try:
+        check_env(e.unwrapped, skip_render_check=True)
+    finally:
+        e.close()
+
+
+def _valid_action(env, rng):
+    planner = RandomPlanner(env.session, rng)
+    return planner.plan(env._observation())
+
+
+def test_step_executes_a_valid_motion(env):
+    obs, info = env.reset(seed=3)
+    assert obs["has_estimate"] == 0 and info["refused"] == ""
+    action = _valid_action(env, np.random.default_rng(0))
+    obs, reward, terminated, truncated, info = env.step(action)
+    assert info["refused"] == ""
+    assert info["n_frames"] >= 3 and info["motion"]["n_tracks"] > 0
+    assert env.observation_space.contains(obs)
+    np.testing.assert_allclose(env.scene.robot.q[action["J"]], action["Q"][action["J"]] + action["delta"][0])
+    assert np.isfinite(reward)
+
+
+def _refused(env, action, match):
+    q_before = env.scene.robot.q
+    n_before = env.session.n_refused
+    obs, reward, terminated, truncated, info = env.step(action)
+    assert match in info["refused"], info["refused"]
+    assert env.session.n_refused == n_before + 1 and info["n_refused"] == n_before + 1
+    np.testing.assert_array_equal(env.scene.robot.q, q_before)  # the robot did not move
+    assert reward == -env.config.refusal_penalty
+    assert not terminated
+
+
+def test_invalid_actions_are_refused_with_a_reason(env):
+    env.reset(seed=4)
+    home = env.scene.robot.home.copy()
+    _refused(env, {"Q": home, "J": 0, "delta": np.array([0.05])}, "below the minimum")
+    _refused(env, {"Q": home, "J": 0, "delta": np.array([np.nan])}, "finite")
+    _refused(env, {"Q": home[:3], "J": 0, "delta": np.array([0.5])}, "shape")
+    _refused(env, {"Q": home, "J": 9, "delta": np.array([0.5])}, "joint 9")
+    bad = home.copy()
+    bad[1] = 3.0
+    _refused(env, {"Q": bad, "J": 0, "delta": np.array([0.5])}, "outside the limits")
+    edge = home.copy()
+    edge[0] = env.scene.robot.upper[0] - 0.1
+    _refused(env, {"Q": edge, "J": 0, "delta": np.array([0.5])}, "sweep ends at")
+    _refused(env, {"J": 0}, "keys")
+
+
+def test_colliding_motions_are_refused(env):
+    env.reset(seed=4)
+    q = env.scene.robot.home.copy()
+    q[1], q[3] = 1.7, -1.0  # shoulder pitched forward, elbow bent: the forearm is in the floor
+    _refused(env, {"Q": q, "J": 0, "delta": np.array([0.5])}, "start configuration in collision")
+    q[1], q[3] = 1.0, -3.0  # folded onto itself: the forearm hits the base
+    _refused(env, {"Q": q, "J": 0, "delta": np.array([0.5])}, "panda0_link0")
+    # a sweep that starts free and ends in the floor
+    q = env.scene.robot.home.copy()
+    assert env.session.refusal_reason(q, 1, 0.3) == ""
+    _refused(env, {"Q": q, "J": 1, "delta": np.array([1.5])}, "sweep in collision")
+
+
+def test_an_obstacle_refuses_the_motions_through_it():
+    e = ArcCalibEnv(EnvConfig(scene=SceneConfig(width=160, height=90, obstacles=(
+        Obstacle("wall", (0.45, 0.0, 0.5), (0.02, 0.6, 0.5)),))))
+    try:
+        e.reset(seed=0)
+        q = e.scene.robot.home.copy()
+        q[0] = -1.2
+        assert "wall" in e.session.refusal_reason(q, 0, 1.5)  # joint 1 swings the arm through the wall
+    finally:
+        e.close()
+
+
+def test_same_seed_same_episode():
+    runs = []
+    for _ in range(2):
+        e = ArcCalibEnv(EnvConfig(scene=SMALL, max_motions=4))
+        obs, _ = e.reset(seed=11)
+        planner = RandomPlanner(e.session, np.random.default_rng(5))
+        trace = [obs]
+        for _ in range(4):
+            obs, reward, *_ = e.step(planner.plan(obs))
+            trace.append(obs)
+            trace.append(reward)
+        runs.append((trace, e.T_camera_base_true.copy()))
+        e.close()
+    (a, Ta), (b, Tb) = runs
+    np.testing.assert_array_equal(Ta, Tb)
+    for x, y in zip(a, b, strict=True):
+        if isinstance(x, dict):
+            for k in x:
+                np.testing.assert_array_equal(x[k], y[k])
+        else:
+            assert x == y
+
+
+def test_oracle_keypoints_need_no_rendering_and_calibrate():
+    e = ArcCalibEnv(EnvConfig(scene=SMALL, max_motions=8, oracle_keypoints=True, oracle_noise_px=0.2))
+    try:
+        obs, _ = e.reset(seed=2)
+        planner = RandomPlanner(e.session, np.random.default_rng(2))
+        for _ in range(8):
+            obs, _, terminated, truncated, info = e.step(planner.plan(obs))
+            assert e.last_seconds["render"] == 0.0
+        assert info["rot_error_rad"] < EPISODE_MAX_ROT_RAD and info["trans_error_m"] < EPISODE_MAX_TRANS_M
+    finally:
+        e.close()
+
+
+def test_short_tracked_episode_reaches_a_bounded_error():
+    e = ArcCalibEnv(EnvConfig(scene=SceneConfig(width=960, height=540), max_motions=10))
+    try:
+        obs, _ = e.reset(seed=0)
+        planner = RandomPlanner(e.session, np.random.default_rng(0))
+        for _ in range(10):
+            obs, reward, terminated, truncated, info = e.step(planner.plan(obs))
+            assert info["refused"] == ""
+            if terminated or truncated:
+                break
+        assert obs["has_estimate"] == 1
+        assert info["rot_error_rad"] < EPISODE_MAX_ROT_RAD
+        assert info["trans_error_m"] < EPISODE_MAX_TRANS_M
+        assert np.all(obs["std"] > 0)
+    finally:
+        e.close()
