@@ -83,11 +83,8 @@ class RandomPlanner:
     def __init__(self, context: PlanningContext, rng: np.random.Generator | None = None,
                  config: RandomPlannerConfig | None = None):
         self.context = context
-        self.rng = rng if rng is not None else np.random.default_rng(context.np_random.integers(2**31 - 1))
         self.config = config or RandomPlannerConfig()
-        self.renderer = context.renderer if self.config.max_image_tests else None
-        if self.renderer is not None:
-            self.renderer.prepare(IMAGE_TEST_DOWNSCALE)  # about 1 s of GL set-up, paid now
+        self.rng, self.renderer = planner_setup(context, rng, self.config.max_image_tests > 0)
 
     def _sample(self) -> tuple[FloatArray, int, float] | None:
         c, ctx = self.config, self.context
@@ -141,6 +138,20 @@ class RandomPlanner:
                     continue
             return motion_action(q, joint, delta)
         raise PlanningError(f"no valid, visible motion in {c.max_tries} random candidates")
+
+
+def planner_setup(context: PlanningContext, rng: np.random.Generator | None,
+                  image_tests: bool) -> tuple[np.random.Generator, SceneRenderer | None]:
+    """A planner's generator and renderer.
+
+    The generator is ``rng``, or one seeded from the context's ``np_random``; the renderer is the
+    context's when the planner runs image tests (prepared now: about 1 s of GL set-up), else None.
+    """
+    generator = rng if rng is not None else np.random.default_rng(context.np_random.integers(2**31 - 1))
+    renderer = context.renderer if image_tests else None
+    if renderer is not None:
+        renderer.prepare(IMAGE_TEST_DOWNSCALE)
+    return generator, renderer
 
 
 def motion_action(q: FloatArray, joint: int, delta: float) -> dict[str, Any]:

@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from arc_env.robot.exports import write_files_atomic
 from solver.errors import ArcCalibError, InvalidInputError
 
 #: Selection methods an episode can use: ARC-Calib with either planner, or the marker baseline.
@@ -237,10 +238,7 @@ class EpisodeStore:
 
     def put(self, record: dict[str, Any]) -> None:
         """Store a record (atomically: a temporary file renamed into place)."""
-        path = self.path(EpisodeSpec(**record["spec"]))
-        tmp = path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(record))
-        os.replace(tmp, path)
+        write_files_atomic({self.path(EpisodeSpec(**record["spec"])): json.dumps(record)})
 
 
 #: Threads per worker process (renderer and BLAS) when episodes run in parallel.

@@ -206,8 +206,8 @@ def detect_board(image: NDArray[np.uint8], board: MarkerBoard, intrinsics: Camer
         return None
     projected, _ = cv2.projectPoints(obj, rvec, tvec, intrinsics.K, intrinsics.dist)
     rms = float(np.sqrt(np.mean(np.sum((projected.reshape(-1, 2) - img) ** 2, axis=1))))
-    T = transform_from_rt(cv2.Rodrigues(rvec)[0], tvec.reshape(3))
-    return BoardDetection(img, obj, T, rms)
+    T_camera_board = transform_from_rt(cv2.Rodrigues(rvec)[0], tvec.reshape(3))
+    return BoardDetection(img, obj, T_camera_board, rms)
 
 
 def shah_robot_world_hand_eye(T_A: FloatArray, T_B: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -370,12 +370,12 @@ class MarkerBaseline:
         qs, poses, tilts = [], [], []
         for _ in range(c.max_samples):
             q = self.rng.uniform(lo, hi)
-            T = self.flange_pose(q)
-            tilt = self._aim_ok(T)
+            T_base_flange = self.flange_pose(q)
+            tilt = self._aim_ok(T_base_flange)
             if tilt is None or self.env.session.checker.in_collision(q)[0]:
                 continue
             qs.append(q)
-            poses.append(T)
+            poses.append(T_base_flange)
             tilts.append(tilt)
             if len(qs) >= c.pool_size:
                 break
@@ -435,15 +435,16 @@ class MarkerBaseline:
     def _solve(self, run: MarkerRun) -> FloatArray | None:
         if len(run.views) < 3:
             return None
-        T_bf = np.array([v.T_base_flange for v in run.views])
-        T_cb = np.array([v.detection.T_camera_board for v in run.views])
+        T_base_flange = np.array([v.T_base_flange for v in run.views])
+        T_camera_board = np.array([v.detection.T_camera_board for v in run.views])
         try:
-            X, Z = solve_eye_to_hand(T_bf, T_cb)
+            T_camera_base, T_flange_board = solve_eye_to_hand(T_base_flange, T_camera_board)
         except (np.linalg.LinAlgError, cv2.error):
             return None
-        run.T_flange_board = Z
-        return X
+        run.T_flange_board = T_flange_board
+        return T_camera_base
 
     def errors(self, run: MarkerRun) -> list[tuple[float, float] | None]:
         """True (rotation rad, translation m) error of each prefix estimate (simulation only)."""
-        return [None if T is None else pose_errors(T, self.env.T_camera_base_true) for T in run.estimates]
+        return [None if T_camera_base is None else pose_errors(T_camera_base, self.env.T_camera_base_true)
+                for T_camera_base in run.estimates]

@@ -51,8 +51,8 @@ class ParentChild:
     def from_T_camera_base(cls, T_camera_base: FloatArray, base_frame: str,
                            camera_frame: str = DEFAULT_CAMERA_FRAME) -> ParentChild:
         """The edge base -> camera optical frame from ARC-Calib's ``T_camera_base`` (4, 4)."""
-        T = check_transform(T_camera_base, "T_camera_base")
-        return cls(np.linalg.inv(T), base_frame, camera_frame)
+        T_camera_base = check_transform(T_camera_base, "T_camera_base")
+        return cls(np.linalg.inv(T_camera_base), base_frame, camera_frame)
 
     @property
     def translation(self) -> FloatArray:

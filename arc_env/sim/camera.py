@@ -34,10 +34,10 @@ def mujoco_camera_from_optical(T_world_camera: FloatArray) -> tuple[FloatArray, 
         pos and quat for ``model.cam_pos`` / ``model.cam_quat`` (MuJoCo's w-first order) of a camera
         attached to the world body.
     """
-    T = check_transform(T_world_camera, "T_world_camera")
-    R_world_mjcam = T[:3, :3] @ R_OPTICAL_MJCAM
+    T_world_camera = check_transform(T_world_camera, "T_world_camera")
+    R_world_mjcam = T_world_camera[:3, :3] @ R_OPTICAL_MJCAM
     x, y, z, w = Rotation.from_matrix(R_world_mjcam).as_quat()
-    return T[:3, 3].copy(), np.array([w, x, y, z])
+    return T_world_camera[:3, 3].copy(), np.array([w, x, y, z])
 
 
 def optical_from_mujoco_camera(pos: FloatArray, xmat: FloatArray) -> FloatArray:

@@ -130,9 +130,9 @@ def add_marker_board(spec: mujoco.MjSpec, board: MarkerBoard) -> None:
     material = spec.add_material(name=_BOARD_MATERIAL)
     material.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = _BOARD_MATERIAL
     material.specular, material.shininess = 0.1, 0.1
-    T = board.T_mount_board
-    x, y, z, w = Rotation.from_matrix(T[:3, :3]).as_quat()
-    body = mount.add_body(name=BOARD_BODY, pos=T[:3, 3], quat=[w, x, y, z])
+    T_mount_board = board.T_mount_board
+    x, y, z, w = Rotation.from_matrix(T_mount_board[:3, :3]).as_quat()
+    body = mount.add_body(name=BOARD_BODY, pos=T_mount_board[:3, 3], quat=[w, x, y, z])
     half = [board.size_m[0] / 2, board.size_m[1] / 2, board.thickness_m / 2]
     centre = half  # the box spans [0, w] x [0, h] x [0, thickness] in the board frame
     body.add_geom(name=BOARD_GEOM, type=mujoco.mjtGeom.mjGEOM_BOX, size=half, pos=centre,

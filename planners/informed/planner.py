@@ -79,7 +79,7 @@ from planners.informed.candidates import (
 from planners.informed.config import InformedPlannerConfig
 from planners.informed.hypotheses import pose_hypotheses
 from planners.informed.information import InformationModel, ScoredMotion
-from planners.random_planner import IMAGE_TEST_DOWNSCALE, estimate_from_observation, image_change, motion_action
+from planners.random_planner import estimate_from_observation, image_change, motion_action, planner_setup
 from solver.arrays import FloatArray
 from solver.errors import ArcCalibError
 from solver.motion import fibonacci_sphere
@@ -107,14 +107,13 @@ class InformedPlanner:
     def __init__(self, context: PlanningContext, rng: np.random.Generator | None = None,
                  config: InformedPlannerConfig | None = None):
         self.context = context
-        self.rng = rng if rng is not None else np.random.default_rng(context.np_random.integers(2**31 - 1))
         self.config = config or InformedPlannerConfig()
+        # the renderer serves the bootstrap's image tests and the occlusion prediction
+        self.rng, _ = planner_setup(context, rng, self.config.bootstrap_image_tests > 0)
+        self.renderer = context.renderer
         self.sampler = CandidateSampler(context, self.config, self.rng)
         self.information = InformationModel(context, self.config)
         self._sphere = fibonacci_sphere(2000)
-        self.renderer = context.renderer
-        if self.config.bootstrap_image_tests and self.renderer is not None:
-            self.renderer.prepare(IMAGE_TEST_DOWNSCALE)  # about 1 s of GL set-up, paid now
         self.last_candidates: list[ScoredMotion] = []
 
     def plan(self, observation: dict[str, Any]) -> dict[str, Any]:
