@@ -13,10 +13,45 @@ import numpy as np
 from solver.arrays import FloatArray
 from solver.errors import InvalidInputError
 
+#: Largest image side accepted, px (16K sensors exist; beyond this a size is a corrupt file).
+MAX_IMAGE_SIDE = 16384
+#: Focal lengths must lie in this range of multiples of the image width (a 0.05x focal length sees
+#: almost 180 degrees; 100x is a telescope): outside it the camera file is wrong, not the camera.
+FOCAL_RANGE_WIDTHS = (0.05, 100.0)
+#: Largest |coefficient| of OpenCV's distortion model accepted (real lenses: |k| below ~10, rational
+#: models up to a few hundred).
+MAX_DISTORTION_COEFFICIENT = 1000.0
+#: Largest |pixel coordinate| of a keypoint, px: far beyond any image; larger values are corrupt data.
+MAX_PIXEL_MAGNITUDE = 1e6
+
 
 def _finite(name: str, array: FloatArray) -> None:
     if not np.all(np.isfinite(array)):
         raise InvalidInputError(f"{name} contains NaN or infinite values")
+
+
+def _check_camera(K: FloatArray, dist: FloatArray, width: object, height: object) -> None:
+    """Magnitude checks of intrinsics (messages name the field, as K[row][column] or dist[i])."""
+    for name, side in (("width", width), ("height", height)):
+        if isinstance(side, bool) or not isinstance(side, int | np.integer) or not 1 <= side <= MAX_IMAGE_SIDE:
+            raise InvalidInputError(f"{name} must be an integer in 1..{MAX_IMAGE_SIDE}, got {side!r}")
+    lo, hi = FOCAL_RANGE_WIDTHS
+    for field_name, value in (("K[0][0] (fx)", K[0, 0]), ("K[1][1] (fy)", K[1, 1])):
+        if not lo * width <= value <= hi * width:
+            raise InvalidInputError(f"{field_name} = {value:g} px is not a focal length for a {width} px wide image "
+                                    f"(expected {lo * width:g}..{hi * width:g} px)")
+    for field_name, value, side in (("K[0][2] (cx)", K[0, 2], width), ("K[1][2] (cy)", K[1, 2], height)):
+        if not -side <= value <= 2 * side:
+            raise InvalidInputError(f"{field_name} = {value:g} px: the principal point must lie within the image "
+                                    f"give or take its size ({-side}..{2 * side} px)")
+    if abs(K[0, 1]) > hi * width or K[1, 0] != 0:
+        raise InvalidInputError(f"K[0][1] (skew) = {K[0, 1]:g} and K[1][0] = {K[1, 0]:g}: expected a small skew "
+                                "and K[1][0] = 0")
+    big = np.nonzero(np.abs(dist) > MAX_DISTORTION_COEFFICIENT)[0]
+    if big.size:
+        k = int(big[0])
+        raise InvalidInputError(f"dist[{k}] = {dist[k]:g} is not a distortion coefficient "
+                                f"(|value| <= {MAX_DISTORTION_COEFFICIENT:g})")
 
 
 @dataclass(frozen=True)
@@ -24,10 +59,12 @@ class CameraIntrinsics:
     """A pinhole camera with OpenCV distortion.
 
     Attributes:
-        K: (3, 3) float64, pixels: the intrinsic matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]].
-        dist: (k,) float64: OpenCV distortion (k1, k2, p1, p2[, k3, ...]); empty means none.
-        width: image width in pixels.
-        height: image height in pixels.
+        K: (3, 3) float64, pixels: the intrinsic matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]; fx and fy
+            within ``FOCAL_RANGE_WIDTHS`` times the width, (cx, cy) within the image give or take its size.
+        dist: (k,) float64: OpenCV distortion (k1, k2, p1, p2[, k3, ...]); empty means none; every
+            |coefficient| at most ``MAX_DISTORTION_COEFFICIENT``.
+        width: image width in pixels, 1..``MAX_IMAGE_SIDE``.
+        height: image height in pixels, 1..``MAX_IMAGE_SIDE``.
     """
 
     K: FloatArray
@@ -46,8 +83,7 @@ class CameraIntrinsics:
             raise InvalidInputError(f"K must have positive focal lengths and last row [0, 0, 1], got {K}")
         if dist.size not in (0, 4, 5, 8, 12, 14):
             raise InvalidInputError(f"dist must have 0, 4, 5, 8, 12 or 14 coefficients, got {dist.size}")
-        if self.width <= 0 or self.height <= 0:
-            raise InvalidInputError(f"image size must be positive, got {self.width}x{self.height}")
+        _check_camera(K, dist, self.width, self.height)
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", dist)
 
@@ -69,7 +105,8 @@ class KeypointTrack:
     """One keypoint followed through consecutive frames of a motion.
 
     Attributes:
-        pixels: (M, 2) float64, pixels: the keypoint's image position in each frame.
+        pixels: (M, 2) float64, pixels: the keypoint's image position in each frame (finite, within
+            ``MAX_PIXEL_MAGNITUDE``).
         delta: (M,) float64, radians: how far the moving joint had turned from its start value
             at each of those frames (the paper's delta_{i,j,k}).
     """
@@ -88,6 +125,9 @@ class KeypointTrack:
             )
         _finite("track pixels", pixels)
         _finite("track delta", delta)
+        if pixels.size and np.max(np.abs(pixels)) > MAX_PIXEL_MAGNITUDE:
+            raise InvalidInputError(f"track pixels reach {np.max(np.abs(pixels)):g} px: beyond any image "
+                                    f"(|pixel| <= {MAX_PIXEL_MAGNITUDE:g})")
         object.__setattr__(self, "pixels", pixels)
         object.__setattr__(self, "delta", delta)
 
@@ -101,7 +141,7 @@ class MotionObservation:
 
     Attributes:
         q_start: (N,) float64, radians: the start configuration Q.
-        joint: index of the joint that turned (0-based).
+        joint: index of the joint that turned (0-based; an integer, never truncated from a float).
         tracks: the keypoint tracks on the moving links.
     """
 
@@ -112,6 +152,8 @@ class MotionObservation:
     def __post_init__(self) -> None:
         q = np.asarray(self.q_start, dtype=np.float64).reshape(-1)
         _finite("q_start", q)
+        if isinstance(self.joint, bool) or not isinstance(self.joint, int | np.integer):
+            raise InvalidInputError(f"joint must be an integer index, got {self.joint!r}")
         if not 0 <= int(self.joint) < q.size:
             raise InvalidInputError(
                 f"joint index {self.joint} out of range for a {q.size}-joint configuration "

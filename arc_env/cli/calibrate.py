@@ -21,7 +21,8 @@ import cv2
 import numpy as np
 
 from arc_env.cli.progress import Progress
-from arc_env.cli.result import add_result_arguments, check_output, finish
+from arc_env.cli.result import add_result_arguments, check_frame_names, check_outputs, finish
+from arc_env.robot.exports import check_frame_name
 from arc_env.robot.overlay import RobotProjector, draw_overlay
 from arc_env.robot.recording import read_recording
 from arc_env.robot.session import CalibrationRun, UsableCriteria, calibrate_recording
@@ -68,10 +69,14 @@ def _read_ground_truth(path: Path) -> np.ndarray:
 def run_calibrate(args: argparse.Namespace) -> int:
     """``arc-calib calibrate`` from parsed arguments; returns the exit code (0 only for a usable result)."""
     UsableCriteria(min_motions=args.min_motions, max_std_deg=args.max_std_deg, max_std_mm=args.max_std_mm)
-    check_output(Path(args.output))
+    inputs = [Path(args.recording)] + ([Path(args.ground_truth)] if args.ground_truth else [])
+    check_outputs(Path(args.output), inputs, args.force, Path(args.overlay) if args.overlay else None)
+    check_frame_names(args)
     truth = _read_ground_truth(Path(args.ground_truth)) if args.ground_truth else None
     started = time.perf_counter()
     recording = read_recording(args.recording)
+    if args.base_frame is None:
+        check_frame_name(recording.base_body, f"{recording.path / 'robot.json'}: the base body (or give --base-frame)")
     usable = recording.usable
     print(f"{recording.path}: {len(recording.motions)} motions ({len(usable)} with one moving joint), camera "
           f"{recording.intrinsics.width}x{recording.intrinsics.height}"

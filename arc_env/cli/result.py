@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +13,7 @@ import numpy as np
 from arc_env.robot.exports import (
     DEFAULT_CAMERA_FRAME,
     ParentChild,
+    check_frame_name,
     export_paths,
     export_texts,
     result_dict,
@@ -52,9 +53,7 @@ def finish(run: CalibrationRun, args: argparse.Namespace, base_frame: str,
     texts: dict[Path, str | bytes] = dict(zip(exports.values(), export_texts(edge).values(), strict=True))
     texts[output] = json.dumps(result, indent=2) + "\n"
     images = overlays() if overlays is not None else {}
-    if images:
-        next(iter(images)).parent.mkdir(parents=True, exist_ok=True)
-    write_files_atomic({**texts, **images})
+    write_files_atomic({**texts, **images})  # all or nothing
 
     np.set_printoptions(precision=6, suppress=True)
     print(f"T_camera_base ({s.stage}; p_camera = T_camera_base @ p_base, OpenCV optical frame):")
@@ -78,12 +77,58 @@ def finish(run: CalibrationRun, args: argparse.Namespace, base_frame: str,
     return 0
 
 
-def check_output(output: Path) -> None:
-    """Refuse an output path that cannot be written (before any work is done)."""
+#: Overlay images ``calibrate`` writes into ``--overlay DIR`` (a glob pattern).
+OVERLAY_PATTERN = "overlay_motion_*.png"
+
+
+def check_outputs(output: Path, inputs: Sequence[Path], force: bool = False, overlay_dir: Path | None = None,
+                  other_outputs: Sequence[Path] = ()) -> None:
+    """Refuse, before any work, outputs that would damage the input or an earlier result.
+
+    Args:
+        output: the result JSON (its exports sit beside it).
+        inputs: what the run reads (a recording directory, a ground-truth file): no output may be one
+            of them or inside one.
+        force: allow replacing existing output files (never an input, never a directory).
+        overlay_dir: ``--overlay DIR``, if given.
+        other_outputs: further outputs of the run (e.g. ``run --record DIR``).
+
+    Raises:
+        InvalidInputError: an output is not .json, its directory does not exist, it is (or is inside)
+            an input, it is an existing directory, or it exists and ``force`` is off.
+    """
+    output = Path(output)
     if output.suffix != ".json":
         raise InvalidInputError(f"--output must be a .json file, got {output}")
     if not output.parent.is_dir():
         raise InvalidInputError(f"--output: directory {output.parent} does not exist")
+    resolved_inputs = [Path(p).resolve() for p in inputs]
+    files = [output, *export_paths(output).values()]
+    for path in [*files, *([overlay_dir] if overlay_dir is not None else []), *other_outputs]:
+        where = Path(path).resolve()
+        for source in resolved_inputs:
+            if where == source or where.is_relative_to(source):
+                raise InvalidInputError(f"{path}: is inside the input {source}; write outputs elsewhere "
+                                        "(ARC-Calib never writes into what it reads)")
+    for path in files:
+        if path.is_dir():
+            raise InvalidInputError(f"{path}: is a directory; --output names the result file")
+        if (path.exists() or path.is_symlink()) and not force:
+            raise InvalidInputError(f"{path}: already exists; use --force to replace it")
+    if overlay_dir is not None:
+        if overlay_dir.exists() and not overlay_dir.is_dir():
+            raise InvalidInputError(f"--overlay {overlay_dir}: exists and is not a directory")
+        earlier = sorted(overlay_dir.glob(OVERLAY_PATTERN)) if overlay_dir.is_dir() else []
+        if earlier and not force:
+            raise InvalidInputError(f"--overlay {overlay_dir}: already holds {earlier[0].name} (and "
+                                    f"{len(earlier) - 1} more); use --force to replace them")
+
+
+def check_frame_names(args: argparse.Namespace) -> None:
+    """Validate ``--base-frame`` (if given) and ``--camera-frame`` before any work: they reach the exports."""
+    if args.base_frame is not None:
+        check_frame_name(args.base_frame, "--base-frame")
+    check_frame_name(args.camera_frame, "--camera-frame")
 
 
 def add_result_arguments(parser: argparse.ArgumentParser) -> None:
@@ -99,3 +144,5 @@ def add_result_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-std-mm", type=float, default=UsableCriteria.max_std_mm,
                         help=f"largest 1-sigma translation per axis, mm (default {UsableCriteria.max_std_mm})")
     parser.add_argument("--quiet", "-q", action="store_true", help="no per-motion progress on stderr")
+    parser.add_argument("--force", action="store_true",
+                        help="replace existing output files (never the input; never a directory)")

@@ -25,8 +25,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from arc_env.cli.progress import Progress
-from arc_env.cli.result import check_output, finish
+from arc_env.cli.result import check_frame_names, check_outputs, finish
 from arc_env.robot.driver import Sweep, load_driver
+from arc_env.robot.exports import check_frame_name
 from arc_env.robot.recording import RecordingWriter
 from arc_env.robot.session import (
     CalibrationRun,
@@ -47,10 +48,17 @@ from solver.errors import ArcCalibError, InvalidInputError
 
 def run_online(args: argparse.Namespace) -> int:
     """``arc-calib run`` from parsed arguments; returns the exit code (0 only for a usable result)."""
-    check_output(Path(args.output))
+    check_outputs(Path(args.output), [], args.force, other_outputs=[Path(args.record)] if args.record else [])
+    if args.record and Path(args.output).resolve().is_relative_to(Path(args.record).resolve()):
+        raise InvalidInputError(f"{args.output}: is inside --record {args.record}; keep the result out of "
+                                "the recording")
     if args.motions < 3:
         raise InvalidInputError("--motions must be >= 3")
+    check_frame_names(args)
     driver = load_driver(args.driver)
+    if args.base_frame is None:
+        check_frame_name(driver.robot.base_body, f"--driver {args.driver}: the robot's base body "
+                                                 "(or give --base-frame)")
     writer: RecordingWriter | None = None
     if args.record:
         writer = RecordingWriter(Path(args.record), driver.intrinsics, driver.robot)

@@ -7,22 +7,37 @@ the camera frame is the OpenCV *optical* frame (x right, y down, z forward) -- R
 i.e. the map from child coordinates to parent coordinates. With the robot base as parent and the optical
 frame as child, every export below therefore carries ``T_base_camera = inv(T_camera_base)``.
 
+Safety. Every frame name that reaches an export is checked against ROS naming rules
+(``check_frame_name``: letters, digits, ``_`` and ``/``, not starting with a digit), and every export is
+produced by a serializer that quotes or escapes on its own (YAML: ``yaml.safe_dump``; shell:
+``shlex.join``; URDF: ElementTree), so a name from a robot file can never become a command or markup.
+
 Each function returns text; ``result_dict`` builds ``result.json`` (``docs/recording-format.md``,
-"Calibration result"). ``write_files_atomic`` is the one writer of every output: temporary files
-beside the targets, renamed into place only when all are written.
+"Calibration result"). ``write_files_atomic`` is the one writer of every output: all files of a run are
+written into a temporary folder beside their targets and moved into place only when all are written;
+if any step fails, none of the new files remains and files they were to replace are put back.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
+import re
+import shlex
+import shutil
+import tempfile
+import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
+import yaml
 from scipy.spatial.transform import Rotation
 
 from solver.arrays import FloatArray
+from solver.errors import InvalidInputError
 from solver.frames import check_transform, quaternion_xyzw_from_matrix
 from solver.pipeline import Calibrator
 
@@ -31,6 +46,21 @@ RESULT_FORMAT = "arc-calib result 1"
 
 #: Default child frame: the colour camera's optical frame as RealSense's ROS 2 driver names it.
 DEFAULT_CAMERA_FRAME = "camera_color_optical_frame"
+#: ROS names: letters, digits, underscores and slashes, not starting with a digit (REP 144, ROS 2 names).
+_FRAME_NAME = re.compile(r"[A-Za-z_/][A-Za-z0-9_/]*")
+
+
+def check_frame_name(name: object, what: str) -> str:
+    """``name`` if it is a valid ROS frame name, else InvalidInputError saying which name and why.
+
+    Args:
+        name: the candidate (a robot's base body, ``--base-frame``, ``--camera-frame``, ...).
+        what: where it comes from, for the message.
+    """
+    if not isinstance(name, str) or not _FRAME_NAME.fullmatch(name):
+        raise InvalidInputError(f"{what} {name!r} is not a valid ROS frame name: use letters, digits, '_' and '/', "
+                                "not starting with a digit")
+    return name
 
 
 @dataclass(frozen=True)
@@ -39,13 +69,18 @@ class ParentChild:
 
     Attributes:
         T_base_camera: (4, 4) float64: the optical frame's pose in the base frame (``inv(T_camera_base)``).
-        base_frame: the parent frame (the robot's base link).
-        camera_frame: the child frame: the camera's *optical* frame (OpenCV / REP 103 ``*_optical_frame``).
+        base_frame: the parent frame (the robot's base link); a valid ROS frame name.
+        camera_frame: the child frame: the camera's *optical* frame (OpenCV / REP 103 ``*_optical_frame``);
+            a valid ROS frame name.
     """
 
     T_base_camera: FloatArray
     base_frame: str
     camera_frame: str = DEFAULT_CAMERA_FRAME
+
+    def __post_init__(self) -> None:
+        check_frame_name(self.base_frame, "the base frame")
+        check_frame_name(self.camera_frame, "the camera frame")
 
     @classmethod
     def from_T_camera_base(cls, T_camera_base: FloatArray, base_frame: str,
@@ -74,6 +109,17 @@ def _f(v: float) -> str:
     return f"{float(v):.9g}"
 
 
+def _number(v: float) -> float:
+    """A float rounded to the 9 significant digits every export prints."""
+    return float(_f(v))
+
+
+#: The header of every text export: what the transform is (no name from any input appears in it).
+_HEADER = ("ARC-Calib markerless calibration. The transform is the pose of the camera's OpenCV optical frame",
+           "(x right, y down, z forward) in the robot base frame, i.e. T_base_camera = inv(T_camera_base);",
+           "TF parent: the base frame, child: the optical frame. Metres; quaternion (x, y, z, w).")
+
+
 def easy_handeye2_calib(edge: ParentChild, name: str = "arc_calib") -> str:
     """An easy_handeye2 ``.calib`` YAML (eye-on-base): parameters, and transform base -> tracking frame.
 
@@ -82,32 +128,25 @@ def easy_handeye2_calib(edge: ParentChild, name: str = "arc_calib") -> str:
     ARC-Calib uses no marker and no effector: those two fields name nothing and are left empty strings.
     """
     t, q = edge.translation, edge.quaternion_xyzw
-    return (
-        "# ARC-Calib markerless calibration, easy_handeye2 format (eye on base).\n"
-        f"# transform: pose of {edge.camera_frame} (OpenCV optical frame: x right, y down, z forward)\n"
-        f"# in {edge.base_frame}, i.e. T_base_camera = inv(T_camera_base); TF parent {edge.base_frame},\n"
-        f"# child {edge.camera_frame}. Metres; quaternion (x, y, z, w).\n"
-        "parameters:\n"
-        f"  name: {name}\n"
-        "  calibration_type: eye_on_base\n"
-        f"  robot_base_frame: {edge.base_frame}\n"
-        "  robot_effector_frame: ''\n"
-        f"  tracking_base_frame: {edge.camera_frame}\n"
-        "  tracking_marker_frame: ''\n"
-        "  freehand_robot_movement: false\n"
-        "  move_group_namespace: /\n"
-        "  move_group: manipulator\n"
-        "transform:\n"
-        "  translation:\n"
-        f"    x: {_f(t[0])}\n"
-        f"    y: {_f(t[1])}\n"
-        f"    z: {_f(t[2])}\n"
-        "  rotation:\n"
-        f"    x: {_f(q[0])}\n"
-        f"    y: {_f(q[1])}\n"
-        f"    z: {_f(q[2])}\n"
-        f"    w: {_f(q[3])}\n"
-    )
+    data = {
+        "parameters": {
+            "name": check_frame_name(name, "the calibration name"),
+            "calibration_type": "eye_on_base",
+            "robot_base_frame": edge.base_frame,
+            "robot_effector_frame": "",
+            "tracking_base_frame": edge.camera_frame,
+            "tracking_marker_frame": "",
+            "freehand_robot_movement": False,
+            "move_group_namespace": "/",
+            "move_group": "manipulator",
+        },
+        "transform": {
+            "translation": {k: _number(v) for k, v in zip("xyz", t, strict=True)},
+            "rotation": {k: _number(v) for k, v in zip("xyzw", q, strict=True)},
+        },
+    }
+    comments = "".join(f"# {line}\n" for line in (*_HEADER, "easy_handeye2 format (eye on base)."))
+    return comments + yaml.safe_dump(data, sort_keys=False, default_flow_style=False)
 
 
 def static_transform_publisher_args(edge: ParentChild) -> list[str]:
@@ -123,26 +162,25 @@ def static_transform_publisher_args(edge: ParentChild) -> list[str]:
 
 
 def static_transform_publisher_command(edge: ParentChild) -> str:
-    """The full ``ros2 run tf2_ros static_transform_publisher ...`` line."""
-    return "ros2 run tf2_ros static_transform_publisher " + " ".join(static_transform_publisher_args(edge))
+    """The full ``ros2 run tf2_ros static_transform_publisher ...`` line, every word shell-quoted."""
+    return shlex.join(["ros2", "run", "tf2_ros", "static_transform_publisher",
+                       *static_transform_publisher_args(edge)])
 
 
 def urdf_joint(edge: ParentChild, joint_name: str | None = None) -> str:
-    """A URDF fixed joint base -> optical frame (and the optical frame's empty link)."""
+    """A URDF fixed joint base -> optical frame (and the optical frame's empty link), built with ElementTree."""
     t, rpy = edge.translation, edge.rpy
-    joint_name = joint_name or f"{edge.base_frame}_to_{edge.camera_frame}"
-    return (
-        f"<!-- ARC-Calib: {edge.camera_frame} is the camera's OpenCV optical frame (x right, y down,\n"
-        f"     z forward), posed in {edge.base_frame}: T_base_camera = inv(T_camera_base). If your camera's\n"
-        f"     driver already publishes {edge.camera_frame} under its camera_link, do not add this joint:\n"
-        "     a TF frame has one parent (see docs/exports.md). -->\n"
-        f'<link name="{edge.camera_frame}"/>\n'
-        f'<joint name="{joint_name}" type="fixed">\n'
-        f'  <parent link="{edge.base_frame}"/>\n'
-        f'  <child link="{edge.camera_frame}"/>\n'
-        f'  <origin xyz="{_f(t[0])} {_f(t[1])} {_f(t[2])}" rpy="{_f(rpy[0])} {_f(rpy[1])} {_f(rpy[2])}"/>\n'
-        "</joint>\n"
-    )
+    joint_name = check_frame_name(joint_name or f"{edge.base_frame}_to_{edge.camera_frame}", "the URDF joint name")
+    comment = ET.Comment(" " + " ".join(_HEADER) + " If your camera's driver already publishes this optical frame "
+                         "under its camera_link, do not add this joint: a TF frame has one parent "
+                         "(see docs/exports.md). ")
+    link = ET.Element("link", name=edge.camera_frame)
+    joint = ET.Element("joint", name=joint_name, type="fixed")
+    ET.SubElement(joint, "parent", link=edge.base_frame)
+    ET.SubElement(joint, "child", link=edge.camera_frame)
+    ET.SubElement(joint, "origin", xyz=" ".join(_f(v) for v in t), rpy=" ".join(_f(v) for v in rpy))
+    ET.indent(joint)
+    return "\n".join(ET.tostring(e, encoding="unicode") for e in (comment, link, joint)) + "\n"
 
 
 def export_paths(output: Path) -> dict[str, Path]:
@@ -157,33 +195,78 @@ def export_paths(output: Path) -> dict[str, Path]:
 def export_texts(edge: ParentChild) -> dict[str, str]:
     """The text of every export, keyed like ``export_paths``."""
     return {"easy_handeye2": easy_handeye2_calib(edge),
-            "static_transform_publisher": (
-                "#!/bin/sh\n"
-                f"# Publish the ARC-Calib result: parent {edge.base_frame}, child {edge.camera_frame} (the\n"
-                "# camera's OpenCV optical frame); the transform is T_base_camera = inv(T_camera_base).\n"
-                + static_transform_publisher_command(edge) + "\n"),
+            "static_transform_publisher": ("#!/bin/sh\n" + "".join(f"# {line}\n" for line in _HEADER)
+                                           + static_transform_publisher_command(edge) + "\n"),
             "urdf_joint": urdf_joint(edge)}
 
 
-def write_files_atomic(files: dict[Path, str | bytes]) -> None:
-    """Write every file (text or bytes) through a temporary file beside it, then rename them all.
+def _existing_ancestor(path: Path) -> Path:
+    for parent in path.parents:
+        if parent.is_dir():
+            return parent
+    return Path(path.anchor or ".")
 
-    The renames start only when every file is written, so a failure leaves no file half-written.
+
+def write_files_atomic(files: dict[Path, str | bytes]) -> None:
+    """Commit every file (text or bytes) of one run together, or none of them.
+
+    The files are first written into a temporary folder beside their targets (in the nearest existing
+    directory, so the moves are renames on one file system); only when all are written are they moved
+    into place, creating missing target directories. If anything fails, the files already moved are
+    taken back out, files they replaced are restored, directories made for them are removed, and the
+    error is raised: none of the new files remains.
+
+    Raises:
+        OSError: a target is an existing directory, or writing or moving failed (nothing is left behind).
     """
-    tmps: list[tuple[Path, Path]] = []
+    targets = [Path(p) for p in files]
+    for path in targets:
+        if path.is_dir():
+            raise IsADirectoryError(f"{path}: is a directory, not a file to write")
+    staging: dict[Path, Path] = {}  # existing ancestor -> temporary folder in it
+    staged: list[tuple[Path, Path]] = []  # (temporary file, target)
+    moved: list[tuple[Path, Path | None]] = []  # (target, backup of what it replaced)
+    made: list[Path] = []  # directories created for targets, outermost first
     try:
-        for path, content in files.items():
-            tmp = path.with_name(f".{path.name}.tmp")
-            tmps.append((tmp, path))
+        for content, target in zip(files.values(), targets, strict=True):
+            base = _existing_ancestor(target)
+            if base not in staging:
+                staging[base] = Path(tempfile.mkdtemp(prefix=".arc-calib-", dir=base))
+            tmp = staging[base] / f"{len(staged):04d}"
             if isinstance(content, bytes):
                 tmp.write_bytes(content)
             else:
                 tmp.write_text(content)
-        for tmp, path in tmps:
-            tmp.replace(path)
+            staged.append((tmp, target))
+        for tmp, target in staged:
+            for parent in reversed(target.parents):
+                if not parent.exists():
+                    parent.mkdir()
+                    made.append(parent)
+            backup = None
+            if target.exists() or target.is_symlink():
+                backup = tmp.with_name(tmp.name + ".previous")
+                os.replace(target, backup)
+            try:
+                os.replace(tmp, target)
+            except BaseException:
+                if backup is not None:
+                    os.replace(backup, target)
+                raise
+            moved.append((target, backup))
+    except BaseException:
+        for target, backup in reversed(moved):
+            with contextlib.suppress(OSError):
+                target.unlink()
+            if backup is not None:
+                os.replace(backup, target)
+        for directory in reversed(made):
+            with contextlib.suppress(OSError):
+                directory.rmdir()
+        raise
     finally:
-        for tmp, _ in tmps:
-            tmp.unlink(missing_ok=True)
+        for folder in staging.values():
+            shutil.rmtree(folder, ignore_errors=True)
 
 
 class MotionRow(Protocol):

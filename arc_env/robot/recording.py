@@ -39,13 +39,16 @@ from arc_env.robot.model import RobotModel, RobotSource, panda_mjcf_dir, robot_s
 from solver.arrays import FloatArray, ImageArray
 from solver.errors import InvalidInputError
 from solver.kinematics import AxisFunction
-from solver.observations import CameraIntrinsics
+from solver.observations import MAX_IMAGE_SIDE, CameraIntrinsics
 
 #: Version of ``docs/recording-format.md`` this module reads and writes.
 FORMAT_VERSION = 1
 #: A joint "moves" in a motion when its positions span more than this, rad (0.57 degrees): well above
 #: encoder noise and servo jitter (~1e-4 rad), well below an exploratory turn (>= 0.2 rad).
 MOVING_THRESHOLD_RAD = 0.01
+#: A joint value may exceed the model's limits by this much (rad) before the recording is refused: readings
+#: of a real arm sit at or slightly past its nominal limits, never a radian beyond.
+JOINT_RANGE_SLACK_RAD = 1.0
 #: Fewest usable motions a recording must hold (the linear calibration needs 3).
 MIN_MOTIONS = 3
 VIDEO_NAME = "video.mp4"
@@ -170,9 +173,16 @@ class Recording:
 
 
 # -- reading ---------------------------------------------------------------------------------------
-def _load_json(path: Path) -> dict:
+def _check_regular_file(path: Path, missing: str) -> None:
+    """InvalidInputError unless ``path`` is a regular file (a FIFO or device would block or never end)."""
+    if not path.exists():
+        raise InvalidInputError(f"{path}: missing ({missing})")
     if not path.is_file():
-        raise InvalidInputError(f"{path}: missing (a recording needs camera.json, robot.json and motions/)")
+        raise InvalidInputError(f"{path}: not a regular file (a directory, FIFO or device?)")
+
+
+def _load_json(path: Path) -> dict:
+    _check_regular_file(path, "a recording needs camera.json, robot.json and motions/")
     try:
         data = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -190,8 +200,11 @@ def read_camera(path: Path) -> CameraIntrinsics:
         raise InvalidInputError(f"{path}: missing key(s) {missing}; expected width, height, K and optional dist")
     try:
         width, height = data["width"], data["height"]
-        if not (isinstance(width, int) and isinstance(height, int)) or width < 16 or height < 16:
-            raise InvalidInputError(f"width and height must be integers >= 16, got {width!r}, {height!r}")
+        sides_ok = all(isinstance(v, int) and not isinstance(v, bool) and 16 <= v <= MAX_IMAGE_SIDE
+                       for v in (width, height))
+        if not sides_ok:
+            raise InvalidInputError(f"width and height must be integers in 16..{MAX_IMAGE_SIDE}, "
+                                    f"got {width!r}, {height!r}")
         K = np.asarray(data["K"], dtype=np.float64)
         dist = np.asarray(data.get("dist") or [], dtype=np.float64).reshape(-1)
         return CameraIntrinsics(K=K, dist=dist, width=width, height=height)
@@ -231,8 +244,7 @@ def read_robot(path: Path) -> tuple[Path, str, RobotModel]:
 
 def _read_joints_csv(path: Path) -> tuple[list[str], FloatArray]:
     """joints.csv -> (joint names, (F, n) positions rad); checks the frame column and finiteness."""
-    if not path.is_file():
-        raise InvalidInputError(f"{path}: missing (every motion needs joints.csv)")
+    _check_regular_file(path, "every motion needs joints.csv")
     try:
         with path.open(newline="") as f:
             rows = [r for r in csv.reader(f) if r and any(cell.strip() for cell in r)]
@@ -265,6 +277,21 @@ def _read_joints_csv(path: Path) -> tuple[list[str], FloatArray]:
     return names, values
 
 
+def _check_joint_range(path: Path, names: list[str], values: FloatArray, robot: RobotModel) -> None:
+    """Every arm joint's value within its limits give or take ``JOINT_RANGE_SLACK_RAD`` (names file, line, joint)."""
+    for i, name in enumerate(robot.joint_names):
+        if name not in names:
+            continue
+        column = values[:, names.index(name)]
+        lo, hi = robot.lower[i] - JOINT_RANGE_SLACK_RAD, robot.upper[i] + JOINT_RANGE_SLACK_RAD
+        bad = np.nonzero((column < lo) | (column > hi))[0]
+        if bad.size:
+            k = int(bad[0])
+            raise InvalidInputError(f"{path} line {k + 2} (frame {k}): {name} = {column[k]:g} rad is outside its "
+                                    f"limits [{robot.lower[i]:.3f}, {robot.upper[i]:.3f}] by more than "
+                                    f"{JOINT_RANGE_SLACK_RAD:g} rad (degrees instead of radians? another robot?)")
+
+
 def _png_size(path: Path) -> tuple[int, int]:
     """(width, height) from a PNG's header; InvalidInputError if it is not a PNG."""
     try:
@@ -290,13 +317,13 @@ def _check_images(motion_dir: Path, n_rows: int, camera: CameraIntrinsics) -> tu
             raise InvalidInputError(f"{frames_dir}: {len(pngs)} PNG frames but {csv_path} has {n_rows} rows")
         paths = tuple(frames_dir / f"{k:06d}.png" for k in range(n_rows))
         for p in paths:
-            if not p.is_file():
-                raise InvalidInputError(f"{p}: missing (frames are numbered 000000.png to {n_rows - 1:06d}.png)")
+            _check_regular_file(p, f"frames are numbered 000000.png to {n_rows - 1:06d}.png")
             w, h = _png_size(p)
             if (w, h) != (camera.width, camera.height):
                 raise InvalidInputError(f"{p}: image is {w}x{h}, camera.json says {size}")
         return paths, None
-    if video.is_file():
+    if video.exists():
+        _check_regular_file(video, "")
         capture = cv2.VideoCapture(str(video))
         try:
             if not capture.isOpened():
@@ -370,7 +397,14 @@ def read_recording(path: str | Path, moving_threshold: float = MOVING_THRESHOLD_
     motions_dir = root / "motions"
     if not motions_dir.is_dir():
         raise InvalidInputError(f"{motions_dir}: missing (a recording holds its motions in motions/NNN/)")
-    dirs = sorted(p for p in motions_dir.iterdir() if p.is_dir())
+    dirs = []
+    for entry in sorted(motions_dir.iterdir()):
+        if entry.name.startswith("."):
+            continue  # hidden files (.DS_Store, editor swap files) are not motions
+        if not entry.is_dir():
+            raise InvalidInputError(f"{entry}: not a motion directory (a file, or a broken or looping symlink?); "
+                                    "motions/ holds one directory per motion")
+        dirs.append(entry)
     if not dirs:
         raise InvalidInputError(f"{motions_dir}: holds no motion directories")
     motions: list[RecordedMotion] = []
@@ -383,6 +417,7 @@ def read_recording(path: str | Path, moving_threshold: float = MOVING_THRESHOLD_
             raise InvalidInputError(f"{csv_path}: unknown joint(s) {unknown}; joints of {model_path.name} "
                                     f"below {base!r}: {list(joint_names)}")
         ignored.update(n for n in names if n not in joint_names)
+        _check_joint_range(csv_path, names, values, robot)
         frame_paths, video = _check_images(d, values.shape[0], camera)
         q, joint, delta, pruned = _classify(names, values, joint_names, default, moving_threshold)
         motions.append(RecordedMotion(index, d.name, d, values.shape[0], frame_paths, video, q, joint,
@@ -528,6 +563,7 @@ def write_video(path: Path, frames: Sequence[ImageArray], fps: float = 30.0) -> 
 __all__ = [
     "FORMAT_VERSION",
     "MIN_MOTIONS",
+    "JOINT_RANGE_SLACK_RAD",
     "MOVING_THRESHOLD_RAD",
     "RecordedMotion",
     "Recording",

@@ -107,7 +107,16 @@ def _k_with(row: int, col: int, value: float) -> np.ndarray:
                      "coefficients, got 3", id="dist-length"),
         pytest.param({"K": K, "dist": np.array([0.1, np.nan, 0, 0])}, "dist contains NaN",
                      id="dist-nan"),
-        pytest.param({"K": K, "width": 0}, "image size must be positive", id="zero-width"),
+        pytest.param({"K": K, "width": 0}, r"width must be an integer in 1\.\.16384, got 0", id="zero-width"),
+        pytest.param({"K": K, "width": 2**31}, r"width must be an integer in 1\.\.16384", id="huge-width"),
+        pytest.param({"K": K, "height": 540.5}, r"height must be an integer", id="float-height"),
+        pytest.param({"K": _k_with(1, 1, 1e300)}, r"K\[1\]\[1\] \(fy\) = 1e\+300 px is not a focal length",
+                     id="K-huge-focal"),
+        pytest.param({"K": _k_with(1, 1, 1e-300)}, r"K\[1\]\[1\] \(fy\) = 1e-300 px is not a focal length",
+                     id="K-tiny-focal"),
+        pytest.param({"K": _k_with(0, 2, 5 * WIDTH)}, r"K\[0\]\[2\] \(cx\) .* principal point", id="K-far-cx"),
+        pytest.param({"K": K, "dist": np.array([0.1, 1e9, 0, 0])}, r"dist\[1\] = 1e\+09 is not a distortion",
+                     id="dist-huge"),
     ],
 )
 def test_intrinsics_validation(kwargs, match):

@@ -6,11 +6,14 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from arc_env.robot.exports import (
     DEFAULT_CAMERA_FRAME,
     ParentChild,
+    check_frame_name,
     easy_handeye2_calib,
     export_paths,
     export_texts,
@@ -18,6 +21,7 @@ from arc_env.robot.exports import (
     urdf_joint,
     write_files_atomic,
 )
+from solver.errors import InvalidInputError
 from solver.frames import transform_from_rt
 from solver.synthetic import look_at
 
@@ -96,9 +100,49 @@ def test_export_paths_sit_beside_the_result(tmp_path):
     assert {p.name for p in paths.values()} == {"result.calib", "result.tf.sh", "result.urdf.xml"}
 
 
-def test_write_files_atomic_writes_nothing_when_one_fails(tmp_path):
-    good = tmp_path / "a.txt"
-    bad = tmp_path / "missing_dir" / "b.txt"
-    with pytest.raises(OSError):
-        write_files_atomic({good: "a", bad: b"b"})
-    assert list(tmp_path.iterdir()) == []
+def test_write_files_atomic_commits_all_or_nothing(tmp_path):
+    (tmp_path / "a.txt").write_text("old")
+    (tmp_path / "not_a_dir").write_text("x")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    with pytest.raises(OSError):  # the second target's parent is a file: its move fails after a.txt's
+        write_files_atomic({tmp_path / "a.txt": "new", tmp_path / "new_dir" / "c.png": b"c",
+                            tmp_path / "not_a_dir" / "b.txt": b"b"})
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before  # a.txt restored, nothing new left
+    with pytest.raises(IsADirectoryError, match="is a directory"):
+        write_files_atomic({tmp_path / "b.txt": "b", tmp_path: "x"})
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_write_files_atomic_creates_folders_and_replaces(tmp_path):
+    write_files_atomic({tmp_path / "a.txt": "new", tmp_path / "out" / "deep" / "b.png": b"b"})
+    write_files_atomic({tmp_path / "a.txt": "newer"})
+    assert (tmp_path / "a.txt").read_text() == "newer" and (tmp_path / "out" / "deep" / "b.png").read_bytes() == b"b"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "out"]  # no staging folder left
+
+
+#: Names an attacker might put in a robot file or on the command line.
+HOSTILE = ["L0$(touch${IFS}PWNED)", "base; rm -rf ~", "a\nb", "1base", "", "base link", 'x"/><evil/>', "--", "a--b>"]
+
+
+@pytest.mark.parametrize("name", HOSTILE)
+def test_hostile_frame_names_never_reach_an_export(name):
+    with pytest.raises(InvalidInputError, match="is not a valid ROS frame name"):
+        ParentChild.from_T_camera_base(np.eye(4), name)
+    with pytest.raises(InvalidInputError, match="is not a valid ROS frame name"):
+        ParentChild.from_T_camera_base(np.eye(4), "base", name)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.text(min_size=1, max_size=20))
+def test_any_accepted_name_round_trips_through_every_serializer(name):
+    try:
+        check_frame_name(name, "name")
+    except InvalidInputError:
+        return
+    edge = ParentChild.from_T_camera_base(np.eye(4), name, name + "_optical")
+    texts = export_texts(edge)
+    words = shlex.split(texts["static_transform_publisher"].splitlines()[-1])
+    assert words[-4:] == ["--frame-id", name, "--child-frame-id", name + "_optical"]
+    assert yaml.safe_load(texts["easy_handeye2"])["parameters"]["robot_base_frame"] == name
+    joint = ET.fromstring(f"<robot>{texts['urdf_joint']}</robot>").find("joint")
+    assert joint.find("parent").get("link") == name
