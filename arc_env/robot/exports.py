@@ -171,9 +171,9 @@ def urdf_joint(edge: ParentChild, joint_name: str | None = None) -> str:
     """A URDF fixed joint base -> optical frame (and the optical frame's empty link), built with ElementTree."""
     t, rpy = edge.translation, edge.rpy
     joint_name = check_frame_name(joint_name or f"{edge.base_frame}_to_{edge.camera_frame}", "the URDF joint name")
-    comment = ET.Comment(" " + " ".join(_HEADER) + " If your camera's driver already publishes this optical frame "
-                         "under its camera_link, do not add this joint: a TF frame has one parent "
-                         "(see docs/exports.md). ")
+    comment = ET.Comment(" " + "\n     ".join([*_HEADER, "If your camera's driver already publishes this optical frame "
+                                                  "under its camera_link, do not add this joint:",
+                                                  "a TF frame has one parent (see docs/exports.md)."]) + " ")
     link = ET.Element("link", name=edge.camera_frame)
     joint = ET.Element("joint", name=joint_name, type="fixed")
     ET.SubElement(joint, "parent", link=edge.base_frame)
