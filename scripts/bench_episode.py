@@ -6,11 +6,14 @@ motions, 1920x1080. Every run is done twice: tracked (rendering + optical flow) 
 error from geometry error. Prints a table and, with ``--json PATH``, writes
 {"tracked": {"3": {"rot_median_rad", "trans_median_m"}, "10": ..., "25": ...}, "oracle": {...},
  "motions_to_converge_median", "seconds_per_episode_median",
- "seconds_split": {"render", "tracking", "solver"}}
+ "seconds_split": {"render", "tracking", "solver"}, "tracks_per_motion_median",
+ "full_tracks_per_motion_median", "axes_per_run_median", "usable_runs", "runs_with_track_counts"}
 (``seconds_split``: median seconds per tracked episode of each part). A run without an estimate at
 a checkpoint counts as an infinite error in the medians (printed as inf, written as null).
 ``--quick``: 2 poses x 1 seed at 960x540, 10 motions, for a CI smoke run (at 640x360 the
 speckle falls below a pixel and too few corners survive to calibrate in 10 motions).
+``--realism realistic`` renders with a real camera's noise, motion blur, gain drift and H.264 video and a
+realistic robot surface; ``--appearance`` picks the surface (``arc_env.sim.imaging``).
 ``--store DIR`` keeps every finished episode (``arc_env.bench.episodes``) and reuses it, so a long run can be
 interrupted and resumed; ``--workers N`` runs N episodes at once (one renderer thread each).
 """
@@ -53,6 +56,18 @@ def summarize(runs: list[dict], checkpoints: list[int], n_motions: int) -> dict:
             for k in checkpoints}
 
 
+def tracking_figures(runs: list[dict]) -> dict:
+    """Medians of tracks per motion and of tracks spanning the sweep, axes per run, usable runs.
+
+    Records stored before these fields existed are left out (``runs_with_track_counts`` counts the rest).
+    """
+    counted = [r for r in runs if "tracks" in r and "usable" in r]
+    return {"tracks_per_motion_median": _median([n for r in counted for n in r["tracks"]]),
+            "full_tracks_per_motion_median": _median([n for r in counted for n in r["full_tracks"]]),
+            "axes_per_run_median": _median([r["axes"] for r in counted]),
+            "usable_runs": sum(bool(r["usable"]) for r in counted), "runs_with_track_counts": len(counted)}
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; returns the exit code."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -71,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     checkpoints = [k for k in CHECKPOINTS if k <= args.motions]
     modes = ["tracked"] + ([] if args.no_oracle else ["oracle"])
     specs = {(mode, pose, seed): EpisodeSpec("random", pose, seed, args.motions, args.width, args.height,
+                                             realism=args.realism, appearance=args.appearance,
                                              oracle=mode == "oracle")
              for pose in range(args.poses) for seed in range(args.seeds) for mode in modes}
     print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, {args.width}x{args.height}")
@@ -99,6 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     out["tracking_plus_solver_ms_per_frame"] = 1e3 * sum(
         r["seconds"]["tracking"] + r["seconds"]["solver"] for r in tracked) / max(frames, 1)
     out["planning_seconds_per_call_median"] = _median([t for r in tracked for t in r["planning"]])
+    out.update(tracking_figures(tracked))
     print()
     print(f"code: {commits_used(records.values())}")
     for mode in modes:
@@ -113,6 +130,12 @@ def main(argv: list[str] | None = None) -> int:
           f"(render {out['seconds_split']['render']:.1f}, tracking {out['seconds_split']['tracking']:.1f}, "
           f"solver {out['seconds_split']['solver']:.1f}); tracking + solver "
           f"{out['tracking_plus_solver_ms_per_frame']:.1f} ms per rendered frame")
+    if out["runs_with_track_counts"]:
+        print(f"tracks per motion (median): {out['tracks_per_motion_median']:.0f}, spanning the sweep "
+              f"{out['full_tracks_per_motion_median']:.0f}; motions with an axis from stage one per run (median): "
+              f"{out['axes_per_run_median']:.1f}; usable result at the end: {out['usable_runs']} of "
+              f"{out['runs_with_track_counts']} runs ({args.realism} camera, "
+              f"{args.appearance or ('realistic' if args.realism == 'realistic' else 'painted')} robot)")
     if args.json:
         write_figures(args.json, out)
     return 0

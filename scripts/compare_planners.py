@@ -90,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="write the figures to this file")
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
-    specs = {(name, pose, seed): EpisodeSpec(name, pose, seed, args.motions, args.width, args.height)
+    specs = {(name, pose, seed): EpisodeSpec(name, pose, seed, args.motions, args.width, args.height,
+                                             realism=args.realism, appearance=args.appearance)
              for pose in range(args.poses) for seed in range(args.seeds) for name in PLANNERS}
     print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, {args.width}x{args.height}")
     print(f"{'planner':>8} {'pose':>4} {'seed':>4} {'@3':>17} {'@6':>17} {'@10':>17} {'final':>17} "

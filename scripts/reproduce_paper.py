@@ -245,7 +245,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, {args.width}x{args.height}, "
           f"methods {', '.join(methods)}, IoU at {args.iou_configs} configurations", flush=True)
     checkpoints = [k for k in CHECKPOINTS if k <= args.motions]
-    specs = {(m, pose, seed): EpisodeSpec(m, pose, seed, args.motions, args.width, args.height)
+    specs = {(m, pose, seed): EpisodeSpec(m, pose, seed, args.motions, args.width, args.height,
+                                          realism=args.realism, appearance=args.appearance)
              for pose in range(args.poses) for seed in range(args.seeds) for m in methods}
 
     def show(r: dict, from_store: bool) -> None:

@@ -21,7 +21,10 @@ A record (``dict``):
 * ``converged_at``: first motion (1-based) after which the convergence monitor fired, or ``null``;
 * ``refused``: actions the env refused; ``in_collision``: executed sweeps and transits that a 2 mm
   re-check finds colliding (must be 0);
-* ``T_camera_base``: the final estimate (4x4 nested lists) or ``null``; ``note``: why it stopped early.
+* ``T_camera_base``: the final estimate (4x4 nested lists) or ``null``; ``note``: why it stopped early;
+* ``tracks``, ``full_tracks``: per executed motion, the tracks handed to the solver and those spanning the
+  sweep; ``axes``: executed motions to which stage one gave an axis (at the end); ``usable``: whether
+  the final estimate passes ``calibrate``'s usability check (``arc_env.robot.session.UsableCriteria``).
 """
 
 from __future__ import annotations
@@ -41,6 +44,8 @@ from typing import Any
 import numpy as np
 
 from arc_env.robot.exports import write_files_atomic
+from arc_env.robot.session import UsableCriteria, state_unusable_reason
+from arc_env.sim.imaging import APPEARANCES, REALISMS, realism_settings
 from solver.errors import ArcCalibError, InvalidInputError
 
 #: Selection methods an episode can use: ARC-Calib with either planner, or the marker baseline.
@@ -61,6 +66,8 @@ class EpisodeSpec:
         width: image width, px.
         height: image height, px.
         oracle: projected mesh points instead of rendering and tracking (ARC-Calib methods only).
+        realism: "clean" (today's renders) or "realistic" camera and robot (``arc_env.sim.imaging``).
+        appearance: the robot's surface; None: the realism's default ("painted" clean, "realistic" realistic).
     """
 
     method: str
@@ -70,9 +77,12 @@ class EpisodeSpec:
     width: int = 1920
     height: int = 1080
     oracle: bool = False
+    realism: str = "clean"
+    appearance: str | None = None
 
     def __post_init__(self) -> None:
         """Check the fields."""
+        realism_settings(self.realism, self.appearance)  # InvalidInputError names the valid choices
         if self.method not in METHODS:
             raise InvalidInputError(f"unknown method {self.method!r}; valid: {', '.join(METHODS)}")
         if self.oracle and self.method == "marker":
@@ -84,7 +94,9 @@ class EpisodeSpec:
     def key(self) -> str:
         """File-name-safe identity, e.g. ``random_1920x1080_m25_p3_s1``."""
         mode = "-oracle" if self.oracle else ""
-        return f"{self.method}{mode}_{self.width}x{self.height}_m{self.motions}_p{self.pose}_s{self.seed}"
+        default_look = (self.realism, self.appearance) == ("clean", None)
+        look = "" if default_look else f"_{self.realism}-{self.appearance or 'default'}"
+        return f"{self.method}{mode}{look}_{self.width}x{self.height}_m{self.motions}_p{self.pose}_s{self.seed}"
 
     @property
     def rng_seed(self) -> int:
@@ -120,7 +132,8 @@ def _make_env(spec: EpisodeSpec, board: bool = False):  # noqa: ANN202  (ArcCali
     from arc_env.sim.scene import SceneConfig
 
     config = EnvConfig(scene=SceneConfig(width=spec.width, height=spec.height,
-                                         marker_board=MarkerBoard() if board else None),
+                                         marker_board=MarkerBoard() if board else None,
+                                         **realism_settings(spec.realism, spec.appearance)),
                        max_motions=spec.motions, oracle_keypoints=spec.oracle, terminate_on_convergence=False)
     env = ArcCalibEnv(config)
     obs, _ = env.reset(seed=spec.rng_seed,
@@ -136,7 +149,7 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
     seconds = dict.fromkeys(("render", "tracking", "solver", "transit", "planning"), 0.0)
     record: dict[str, Any] = {"spec": asdict(spec), "commit": code_version(), "curve": [], "planning": [],
                               "frames": 0, "converged_at": None, "refused": 0, "in_collision": 0,
-                              "T_camera_base": None, "note": ""}
+                              "T_camera_base": None, "note": "", "tracks": [], "full_tracks": []}
     env, obs = _make_env(spec)
     try:
         planner_cls = RandomPlanner if spec.method == "random" else InformedPlanner
@@ -168,10 +181,16 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
                                 for a, b in zip(path[:-1], path[1:], strict=True))
             record["in_collision"] += int(not free)
             record["curve"].append(_error_pair(info["rot_error_rad"], info["trans_error_m"]))
+            record["tracks"].append(int(info["motion"]["n_tracks"]))
+            record["full_tracks"].append(int(info["motion"]["n_full_tracks"]))
             if obs["converged"] and record["converged_at"] is None:
                 record["converged_at"] = len(record["curve"])
             if info["T_camera_base"] is not None:
                 record["T_camera_base"] = np.asarray(info["T_camera_base"]).tolist()
+        calibrator = env.session.calibrator
+        assert calibrator is not None
+        record["axes"] = sum(calibrator.motion_geometry(i) is not None for i in range(len(calibrator.reports)))
+        record["usable"] = not state_unusable_reason(calibrator.state, calibrator.state.n_accepted, UsableCriteria())
     finally:
         env.close()
     seconds["planning"] = float(sum(record["planning"]))
@@ -234,7 +253,10 @@ class EpisodeStore:
             record = json.loads(path.read_text())
         except (OSError, ValueError):
             return None
-        return record if isinstance(record, dict) and record.get("spec") == asdict(spec) else None
+        if not isinstance(record, dict) or not isinstance(record.get("spec"), dict):
+            return None
+        defaults = {"realism": "clean", "appearance": None}  # records stored before these fields existed
+        return record if {**defaults, **record["spec"]} == asdict(spec) else None
 
     def put(self, record: dict[str, Any]) -> None:
         """Store a record (atomically: a temporary file renamed into place)."""
@@ -300,7 +322,11 @@ def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None
 
 
 def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
-    """The study scripts' ``--workers N`` and ``--store DIR`` (read back by :func:`run_from_arguments`)."""
+    """The study scripts' ``--workers N``, ``--store DIR`` (read back by :func:`run_from_arguments`) and the look."""
+    parser.add_argument("--realism", choices=REALISMS, default="clean",
+                        help="camera and robot: clean renders (default) or realistic (noise, blur, H.264, shadows)")
+    parser.add_argument("--appearance", choices=APPEARANCES,
+                        help="the robot's surface (default: painted when clean, realistic when realistic)")
     parser.add_argument("--workers", type=int, default=1, help="episodes run in parallel processes (default 1)")
     parser.add_argument("--store", type=Path, help="keep finished episodes here and reuse them (resumable runs, "
                         "shared by bench_episode.py, compare_planners.py and reproduce_paper.py)")

@@ -17,6 +17,20 @@ import sys
 
 from solver.errors import ArcCalibError, InvalidInputError
 
+#: The realism presets and robot appearances of the simulator (``arc_env.sim.imaging``; kept here so that
+#: ``--help`` does not import the simulator).
+REALISMS = ("clean", "realistic")
+APPEARANCES = ("painted", "as_shipped", "realistic")
+
+
+def _add_look_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--realism", choices=REALISMS, default="clean",
+                        help="clean renders (default), or realistic: sensor noise (~3 grey levels), 8 ms motion "
+                             "blur, +-5%% auto-exposure gain, H.264 video, shadows, the realistic appearance")
+    parser.add_argument("--appearance", choices=APPEARANCES,
+                        help="the robot's surface: painted (uniform speckle; the clean default), as_shipped (the "
+                             "model's own materials), realistic (plus sparse screws and seams; the realistic default)")
+
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``arc-calib`` console script."""
@@ -42,6 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     demo.add_argument("--stop-when-converged", action="store_true", help="stop at convergence")
     demo.add_argument("--planner", choices=("random", "informed"), default="random",
                       help="motion selection: random (the paper) or informed (ours; default random)")
+    _add_look_arguments(demo)
     record = sub.add_parser("record", help="simulate an episode and write it as a recording (docs/recording-format.md)")
     record.add_argument("--out", required=True, metavar="DIR",
                         help="the recording directory to create; the ground truth goes to DIR.ground_truth.json")
@@ -57,6 +72,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="frame rate, Hz; joints turn at 1 rad/s (default 30)")
     record.add_argument("--robot", help="robot MJCF or URDF file (default: the gymnasium-robotics Panda)")
     record.add_argument("--base-body", help="the robot's base body (required with --robot)")
+    _add_look_arguments(record)
     calibrate = sub.add_parser("calibrate", help="calibrate from a recording; write the result and ROS exports")
     from arc_env.cli.calibrate import add_arguments
     from arc_env.cli.result import add_result_arguments

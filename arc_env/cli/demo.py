@@ -18,6 +18,7 @@ from arc_env.robot.exports import write_files_atomic
 from arc_env.robot.model import RobotSource
 from arc_env.robot.overlay import draw_overlay, mask_iou
 from arc_env.sim.env import ArcCalibEnv, EnvConfig
+from arc_env.sim.imaging import realism_settings
 from arc_env.sim.scene import SceneConfig
 from planners.errors import PlanningError
 from planners.informed import InformedPlanner
@@ -42,7 +43,8 @@ def run_demo(args: argparse.Namespace) -> int:
     if args.robot and not args.base_body:
         raise InvalidInputError("--robot needs --base-body (the body whose frame is the robot's base)")
     robot = RobotSource(path=args.robot, base_body=args.base_body, home=()) if args.robot else RobotSource()
-    scene = SceneConfig(robot=robot, width=args.width, height=args.height)
+    scene = SceneConfig(robot=robot, width=args.width, height=args.height,
+                        **realism_settings(args.realism, args.appearance))
     config = EnvConfig(scene=scene, max_motions=args.motions, oracle_keypoints=args.oracle,
                        oracle_noise_px=args.noise)
     env = ArcCalibEnv(config)
@@ -56,7 +58,9 @@ def _episode(env: ArcCalibEnv, args: argparse.Namespace) -> int:
     obs, info = env.reset(seed=args.seed)
     planner = (InformedPlanner if args.planner == "informed" else RandomPlanner)(env.session,
                                                                                   np.random.default_rng(args.seed))
-    mode = "oracle keypoints" if args.oracle else "rendered pixels, optical-flow tracking"
+    look = env.config.scene
+    mode = ("oracle keypoints" if args.oracle else
+            f"rendered pixels ({args.realism} camera, {look.appearance} robot), optical-flow tracking")
     robot = env.config.scene.robot.path or "Franka Panda (gymnasium-robotics)"
     print(f"{robot}, camera {env.intrinsics.width}x{env.intrinsics.height} fx={env.intrinsics.K[0, 0]:.0f}, "
           f"{mode}, {args.planner} motions, seed {args.seed}")

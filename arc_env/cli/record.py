@@ -23,7 +23,7 @@ def run_record(args: argparse.Namespace) -> int:
     dist = tuple(parse_dist(args.dist)) if args.dist else ()
     settings = RecordSettings(out=Path(args.out), motions=args.motions, seed=args.seed, width=args.width,
                               height=args.height, fx=args.fx, dist=dist, video=args.video, fps=args.fps,
-                              robot=robot)
+                              robot=robot, realism=args.realism, appearance=args.appearance)
     started = time.perf_counter()
     with Progress(settings.motions, "motions recorded") as bar:
         truth = record_episode(settings, on_motion=bar.step)

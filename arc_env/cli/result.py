@@ -28,8 +28,10 @@ def finish(run: CalibrationRun, args: argparse.Namespace, base_frame: str,
            overlays: Callable[[], dict[Path, bytes]] | None, truth: np.ndarray | None, started: float) -> int:
     """Print the per-motion table; if the result is usable, write it with its exports and print it.
 
-    ``args`` carries output, camera_frame, min_motions, max_std_deg, max_std_mm (and ground_truth for
-    the message). Returns the exit code: 0 written, 1 not usable (nothing written).
+    An estimate that is not usable is still written to ``result.json`` with ``"usable": false`` and the
+    reason, so a user can look, but without ROS exports or overlays; with no estimate at all nothing is
+    written. ``args`` carries output, camera_frame, min_motions, max_std_deg, max_std_mm (and
+    ground_truth for the message). Returns the exit code: 0 usable (written), 1 not usable.
     """
     criteria = UsableCriteria(min_motions=args.min_motions, max_std_deg=args.max_std_deg, max_std_mm=args.max_std_mm)
     output = Path(args.output)
@@ -43,11 +45,18 @@ def finish(run: CalibrationRun, args: argparse.Namespace, base_frame: str,
     print(f"motions: {len(run.diagnostics)}, accepted {run.n_accepted}, rejected "
           f"{len(run.diagnostics) - run.n_accepted}; {run.seconds.get('total', 0.0):.1f} s ({parts})")
     why = unusable_reason(run, criteria)
-    if why:
+    T_camera_base = s.T_camera_base
+    if why and T_camera_base is None:
         print(f"no usable calibration: {why}. Nothing written.")
         return 1
-    T_camera_base = s.T_camera_base
     edge = ParentChild.from_T_camera_base(T_camera_base, base_frame, args.camera_frame)
+    if why:
+        write_files_atomic({output: json.dumps(result_dict(run, edge, {}, why), indent=2) + "\n"})
+        print(f"no usable calibration: {why}. Wrote {output} with \"usable\": false (no ROS exports).")
+        if truth is not None:
+            rot, trans = pose_errors(T_camera_base, truth)
+            print(f"true error: rotation {rot:.2e} rad ({np.degrees(rot):.4f} deg), translation {trans * 1e3:.3f} mm")
+        return 1
     exports = export_paths(output)
     result = result_dict(run, edge, exports)
     texts: dict[Path, str | bytes] = dict(zip(exports.values(), export_texts(edge).values(), strict=True))

@@ -299,13 +299,20 @@ class FinishedCalibration(Protocol):
         ...
 
 
-def result_dict(run: FinishedCalibration, edge: ParentChild, exports: dict[str, Path]) -> dict[str, Any]:
-    """The result JSON (see docs/recording-format.md, "Calibration result")."""
+def result_dict(run: FinishedCalibration, edge: ParentChild, exports: dict[str, Path],
+                unusable: str = "") -> dict[str, Any]:
+    """The result JSON (see docs/recording-format.md, "Calibration result").
+
+    ``unusable``: "" for a usable result, else why not (``"usable": false``; covariance and 1-sigma are
+    null when the bundle adjustment gave none).
+    """
     s = run.calibrator.state
     T_camera_base = s.T_camera_base
-    assert T_camera_base is not None and s.covariance is not None and s.std is not None
+    assert T_camera_base is not None
     return {
         "format": RESULT_FORMAT,
+        "usable": not unusable,
+        "unusable_reason": unusable,
         "source": run.source,
         "convention": ("p_camera = T_camera_base @ p_base; camera frame = OpenCV optical frame (x right, y down, "
                        "z forward); metres, radians; quaternions (x, y, z, w)"),
@@ -313,10 +320,11 @@ def result_dict(run: FinishedCalibration, edge: ParentChild, exports: dict[str, 
         "translation": T_camera_base[:3, 3].tolist(),
         "quaternion": quaternion_xyzw_from_matrix(T_camera_base[:3, :3]).tolist(),
         "T_base_camera": edge.T_base_camera.tolist(),
-        "covariance": s.covariance.tolist(),
+        "covariance": None if s.covariance is None else s.covariance.tolist(),
         "covariance_parameters": ("xi = (omega rad, tau m), camera frame: R = Exp(omega) R_hat, t = t_hat + tau "
                                   "(T_camera_base)"),
-        "std": {"rotation_deg": np.degrees(s.std[:3]).tolist(), "translation_mm": (s.std[3:] * 1e3).tolist()},
+        "std": None if s.std is None else {"rotation_deg": np.degrees(s.std[:3]).tolist(),
+                                           "translation_mm": (s.std[3:] * 1e3).tolist()},
         "rms_reprojection_px": s.rms_px,
         "stage": s.stage,
         "converged": s.converged,

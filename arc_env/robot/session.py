@@ -113,6 +113,7 @@ class MotionOutcome:
         reason: why not ("" when accepted).
         stage_one: "" or why stage one found no axis.
         report: the calibrator's report, None when the motion never reached it.
+        n_full_tracks: tracks spanning the sweep (``FULL_TRACK_FRACTION`` of its turn or more).
     """
 
     joint: int
@@ -121,11 +122,22 @@ class MotionOutcome:
     reason: str
     stage_one: str = ""
     report: MotionReport | None = None
+    n_full_tracks: int = 0
 
     def as_info(self) -> dict[str, object]:
         """The env's ``info["motion"]`` dict."""
         return {"joint": self.joint, "n_tracks": self.n_tracks, "accepted": self.accepted, "reason": self.reason,
-                "stage_one": self.stage_one}
+                "stage_one": self.stage_one, "n_full_tracks": self.n_full_tracks}
+
+
+#: A track "spans the sweep" when it follows its point over at least this fraction of the joint's turn.
+FULL_TRACK_FRACTION = 0.9
+
+
+def full_tracks(tracks: Sequence[KeypointTrack], deltas: FloatArray) -> int:
+    """How many tracks cover at least ``FULL_TRACK_FRACTION`` of the turn deltas (F,) rad."""
+    turn = float(np.ptp(deltas)) if len(deltas) else 0.0
+    return sum(float(np.ptp(t.delta)) >= FULL_TRACK_FRACTION * turn for t in tracks) if turn > 0 else 0
 
 
 @dataclass(frozen=True)
@@ -283,7 +295,8 @@ class CalibrationSession:
         self.robot.set_q(acquired.q_end)
         seconds["transit"] = transit.seconds
         t0 = time.perf_counter()
-        outcome = self.observe(acquired.q_start, joint, tracks)
+        outcome = replace(self.observe(acquired.q_start, joint, tracks),
+                          n_full_tracks=full_tracks(tracks, acquired.deltas))
         seconds["solver"] = time.perf_counter() - t0
         self.n_motions += 1
         return StepResult("", transit, outcome, len(acquired.deltas), seconds)
@@ -524,16 +537,20 @@ def copy_report(report: MotionReport, diag: MotionDiagnostic) -> None:
 
 def unusable_reason(run: CalibrationRun, criteria: UsableCriteria) -> str:
     """"" when the result is usable, else why not."""
-    s = run.calibrator.state
     if not run.calibrator.reports:
         return (f"none of the {len(run.diagnostics)} motions gave keypoint tracks (pruned, or nothing moved "
                 "in the images: is the robot in view?)")
+    return state_unusable_reason(run.calibrator.state, run.n_accepted, criteria)
+
+
+def state_unusable_reason(s: CalibrationState, n_accepted: int, criteria: UsableCriteria) -> str:
+    """"" when the calibration state (with n_accepted motions informing it) is usable, else why not."""
     if s.T_camera_base is None:
         return f"no estimate: {s.message}"
     if s.stage != "refined" or s.std is None:
         return f"only a {s.stage} estimate (the bundle adjustment gave none: {s.message or 'see motions'})"
-    if run.n_accepted < criteria.min_motions:
-        return f"only {run.n_accepted} motion(s) inform the estimate (need {criteria.min_motions})"
+    if n_accepted < criteria.min_motions:
+        return f"only {n_accepted} motion(s) inform the estimate (need {criteria.min_motions})"
     std_deg, std_mm = np.degrees(s.std[:3]), s.std[3:] * 1e3
     if np.any(std_deg > criteria.max_std_deg) or np.any(std_mm > criteria.max_std_mm):
         return (f"the estimate is too uncertain: 1-sigma rotation {np.round(std_deg, 3).tolist()} deg "

@@ -40,6 +40,7 @@ class SimulatedDriver:
                                                      config.camera_distance, config.camera_max_roll)
         self.scene.set_camera(self.T_camera_base_true)
         self.fps, self.joint_speed = fps, joint_speed
+        self._rng = np.random.default_rng([seed, 1])  # camera effects, if the scene has any
         self.n_sweeps = 0
 
     @property
@@ -56,7 +57,7 @@ class SimulatedDriver:
         q = self.scene.robot.q
         n = max(3, int(np.ceil(abs(delta) / self.joint_speed * self.fps)) + 1)
         deltas = np.linspace(0.0, delta, n)
-        frames = self.scene.render_sweep(q, joint, deltas)
+        frames = self.scene.render_sweep(q, joint, deltas, self.joint_speed, self._rng)
         positions = np.tile(q, (n, 1))
         positions[:, joint] += deltas
         self.n_sweeps += 1

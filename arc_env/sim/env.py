@@ -306,7 +306,7 @@ class ArcCalibEnv(gym.Env):
             return Acquisition(q, q_end, deltas, tracks=tracks,
                                seconds={"render": 0.0, "tracking": time.perf_counter() - t0})
         t0 = time.perf_counter()
-        frames = self.scene.render_sweep(q, joint, deltas)
+        frames = self.scene.render_sweep(q, joint, deltas, self.config.joint_speed, self.np_random)
         return Acquisition(q, q_end, deltas, frames=frames, seconds={"render": time.perf_counter() - t0})
 
     def _oracle_tracks(self, q: FloatArray, joint: int, deltas: FloatArray) -> list[KeypointTrack]:

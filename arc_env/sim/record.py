@@ -24,6 +24,7 @@ from arc_env.robot.model import RobotSource
 from arc_env.robot.recording import RecordingWriter
 from arc_env.sim.distortion import Distorter
 from arc_env.sim.env import ArcCalibEnv, EnvConfig
+from arc_env.sim.imaging import realism_settings
 from arc_env.sim.scene import SceneConfig
 from planners.random_planner import RandomPlanner
 from solver.errors import ArcCalibError, InvalidInputError
@@ -52,6 +53,8 @@ class RecordSettings:
         video: one MP4 per motion instead of PNG frames.
         fps: camera frame rate, Hz (the joint turns at 1 rad/s, so this sets the frames per motion).
         robot: the robot.
+        realism: "clean" or "realistic" camera (``arc_env.sim.imaging.realism_settings``).
+        appearance: the robot's surface (None: the realism's default).
     """
 
     out: Path
@@ -64,6 +67,8 @@ class RecordSettings:
     video: bool = False
     fps: float = 30.0
     robot: RobotSource = RobotSource()
+    realism: str = "clean"
+    appearance: str | None = None
 
 
 def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | None = None) -> dict:
@@ -86,7 +91,8 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
                               width=s.width, height=s.height)
     distorter = Distorter(target) if target.dist.size and np.any(target.dist != 0) else None
     render_fx = distorter.pinhole.K[0, 0] if distorter else fx
-    scene = SceneConfig(robot=s.robot, width=s.width, height=s.height, fx=render_fx)
+    scene = SceneConfig(robot=s.robot, width=s.width, height=s.height, fx=render_fx,
+                        **realism_settings(s.realism, s.appearance))
     env = ArcCalibEnv(EnvConfig(scene=scene, max_motions=s.motions, oracle_keypoints=True,
                                 terminate_on_convergence=False, fps=s.fps))
     writer: RecordingWriter | None = None
@@ -103,7 +109,8 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
                 raise ArcCalibError(f"the env refused the planner's motion: {info['refused']}")
             q, joint, delta = np.asarray(action["Q"], float), int(action["J"]), float(action["delta"][0])
             deltas = env.sweep_deltas(delta)
-            frames = env.scene.render_sweep(q, joint, deltas)
+            frames = env.scene.render_sweep(q, joint, deltas, env.config.joint_speed,
+                                            np.random.default_rng([s.seed, writer.n_motions]))
             if distorter:
                 frames = [distorter(image) for image in frames]
             robot.set_swept(q, joint, delta)

@@ -5,12 +5,14 @@ the arm's joints and limits, its kinematics Gamma(Q, J) in the base frame (the f
 solver takes), the camera pose, rendering (RGB and a robot mask) and the moving links' surface
 points (for the oracle keypoints).
 
-Surface texture. A flat-shaded mesh has few corners, while real arms have seams, screws, logos and
-scuffs. Every rendered geom of the robot gets one material: a MuJoCo built-in cube texture with
-random dark marks on a light ground (``mark="random"``), mapped from each geom's local
-coordinates, i.e. a uniform speckle "paint". This is fair: the marks are random texels, not
-fiducials; nothing downstream knows where they are or that they exist, the tracker finds corners
-in the rendered pixels exactly as it would on a real arm, and the solver only ever sees tracks.
+Surface texture (``SceneConfig.appearance``, ``arc_env.sim.imaging``). A flat-shaded mesh has few corners,
+while real arms have seams, screws, logos and scuffs. ``painted`` (the default) gives every rendered geom
+of the robot one material: a MuJoCo built-in cube texture with random dark marks on a light ground
+(``mark="random"``), mapped from each geom's local coordinates, i.e. a uniform speckle "paint" -- richer
+than any real arm. ``as_shipped`` keeps the model's own materials; ``realistic`` adds sparse screw heads or
+panel seams to some links. The marks are random texels, not fiducials; nothing downstream knows where they
+are or that they exist, and the solver only ever sees tracks. Camera effects (noise, motion blur, gain
+drift, lossy video) are applied to the frames of a sweep (``Scene.render_sweep``).
 
 The robot itself (joints, limits, kinematics, surface points) is an ``arc_env.robot.model.RobotModel``
 around the scene's compiled model, ``Scene.robot``; it shares the scene's state, so posing the arm poses
@@ -31,6 +33,7 @@ from numpy.typing import NDArray
 
 from arc_env.robot.model import RobotModel, RobotSource, attach_robot, compile_spec, robot_spec
 from arc_env.sim.camera import fovy_from_intrinsics, mujoco_camera_from_optical
+from arc_env.sim.imaging import APPEARANCES, CameraEffects
 from arc_env.sim.marker_board import MarkerBoard, add_marker_board, restore_board_material
 from arc_env.sim.rendering import create_renderer
 from solver.arrays import FloatArray, ImageArray, MaskArray
@@ -43,6 +46,8 @@ CAMERA_NAME = "arc_camera"
 #: Name of the body carrying the camera housing and tripod (collision geometry for the planners).
 MOUNT_BODY = "arc_camera_mount"
 _SPECKLE = "arc_speckle"
+_SEAMS = "arc_seams"
+_SCREWS = "arc_screws"
 
 
 @dataclass(frozen=True)
@@ -81,9 +86,12 @@ class SceneConfig:
             0 turns it off). Measured on the 960x540 recording round trip
             (tests/arc_env/test_round_trip.py): aliased frames 9.7 mrad / 8.6 mm, with the 0.7 px
             blur 5.0 mrad / 3.7 mm, with 4x MSAA and no blur 3.0 mrad / 3.3 mm; costs 3.6 ms at 1080p.
-        speckle: give the robot's rendered geoms the random-speckle texture (see the module doc).
+        appearance: the robot's surface: "painted" (uniform speckle), "as_shipped" (the model's own
+            materials) or "realistic" (as shipped plus sparse screws and seams); see ``arc_env.sim.imaging``.
+        appearance_seed: which links get which marks under "realistic".
         speckle_texels: texels per cube face of the speckle texture (fewer: larger marks).
         speckle_density: fraction of texels that are dark marks.
+        effects: what the camera adds to the frames of a sweep (noise, motion blur, gain drift, video).
         obstacles: static boxes.
         camera_mount: add a camera housing and tripod pole as collision geometry.
         marker_board: a ChArUco board fixed to the robot (the marker baseline's scene,
@@ -98,12 +106,14 @@ class SceneConfig:
     reflections: bool = False
     multisamples: int = 0
     blur_px: float = 0.7
-    speckle: bool = True
+    appearance: str = "painted"
+    appearance_seed: int = 0
     speckle_texels: int = 96
     speckle_density: float = 0.06
     obstacles: tuple[Obstacle, ...] = ()
     camera_mount: bool = True
     marker_board: MarkerBoard | None = None
+    effects: CameraEffects = field(default_factory=CameraEffects)
 
     def __post_init__(self) -> None:
         if self.width < 16 or self.height < 16:
@@ -116,6 +126,8 @@ class SceneConfig:
             raise InvalidInputError(f"blur_px must be in [0, 5], got {self.blur_px}")
         if not 0.0 < self.speckle_density < 1.0:
             raise InvalidInputError("speckle_density must be in (0, 1)")
+        if self.appearance not in APPEARANCES:
+            raise InvalidInputError(f"appearance must be one of {APPEARANCES}, got {self.appearance!r}")
 
     @property
     def intrinsics(self) -> CameraIntrinsics:
@@ -146,6 +158,12 @@ def _world_xml(config: SceneConfig) -> str:
     <texture name="{_SPECKLE}" type="cube" builtin="flat" mark="random" random="{c.speckle_density}"
       rgb1=".88 .88 .85" markrgb=".08 .08 .08" width="{c.speckle_texels}" height="{c.speckle_texels}"/>
     <material name="{_SPECKLE}" texture="{_SPECKLE}" specular=".2" shininess=".2"/>
+    <texture name="{_SEAMS}" type="cube" builtin="flat" mark="edge" rgb1=".9 .9 .88" markrgb=".3 .3 .3"
+      width="64" height="64"/>
+    <material name="{_SEAMS}" texture="{_SEAMS}" specular=".3" shininess=".3"/>
+    <texture name="{_SCREWS}" type="cube" builtin="flat" mark="random" random="0.003" rgb1=".9 .9 .88"
+      markrgb=".12 .12 .12" width="128" height="128"/>
+    <material name="{_SCREWS}" texture="{_SCREWS}" specular=".3" shininess=".3"/>
   </asset>
   <worldbody>
     <light name="arc_key" pos="1.5 1.0 3.0" dir="-0.5 -0.3 -1" directional="true" diffuse=".55 .55 .55"
@@ -203,10 +221,18 @@ class Scene:
         self.robot.set_q(self.robot.home)
 
     def _set_up_robot_geoms(self) -> None:
-        """Give the robot's drawn geoms (``RobotModel.rendered_geoms``) the speckle texture, if asked."""
-        if self.config.speckle:
-            m = self.model
-            m.geom_matid[self.robot.rendered_geoms()] = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_MATERIAL, _SPECKLE)
+        """Dress the robot's drawn geoms (``RobotModel.rendered_geoms``) for ``config.appearance``."""
+        m, appearance = self.model, self.config.appearance
+        geoms = self.robot.rendered_geoms()
+        material = {name: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_MATERIAL, name)
+                    for name in (_SPECKLE, _SEAMS, _SCREWS)}
+        if appearance == "painted":
+            m.geom_matid[geoms] = material[_SPECKLE]
+        elif appearance == "realistic":  # a third of the links plain, a third with seams, a third with screws
+            choice = np.random.default_rng(self.config.appearance_seed).integers(0, 3, len(geoms))
+            for g, c in zip(geoms, choice, strict=True):
+                if c:
+                    m.geom_matid[g] = material[_SEAMS if c == 1 else _SCREWS]
 
     # -- camera --------------------------------------------------------------------------------
     @functools.cached_property
@@ -282,15 +308,32 @@ class Scene:
             image = cv2.GaussianBlur(image, (0, 0), self.config.blur_px)
         return image
 
-    def render_sweep(self, q: FloatArray, joint: int, deltas: FloatArray) -> list[ImageArray]:
-        """Full-resolution frames of joint ``joint`` turned by each of deltas (F,) rad from q (n,) rad.
+    def render_sweep(self, q: FloatArray, joint: int, deltas: FloatArray, joint_speed: float = 1.0,
+                     rng: np.random.Generator | None = None) -> list[ImageArray]:
+        """Frames of joint ``joint`` turned by each of deltas (F,) rad from q (n,) rad, through the camera.
 
-        The arm is left at the last frame's configuration.
+        With ``config.effects``: each frame is the mean of renders over its exposure (the joint turning
+        at ``joint_speed`` rad/s), then gain drift, noise and lossy video are applied with ``rng`` (needed
+        when the effects draw random numbers). The arm is left at the last frame's configuration.
         """
+        effects = self.config.effects
+        offsets = effects.exposure_offsets(joint_speed) * (1.0 if deltas[-1] >= deltas[0] else -1.0)
         frames = []
         for d in deltas:
-            self.robot.set_swept(q, joint, d)
-            frames.append(self.render())
+            if len(offsets) == 1:
+                self.robot.set_swept(q, joint, d)
+                frames.append(self.render())
+                continue
+            total = np.zeros((self.config.height, self.config.width, 3), np.float32)
+            for offset in offsets:
+                self.robot.set_swept(q, joint, d + offset)
+                total += self.render()
+            frames.append(np.clip(np.rint(total / len(offsets)), 0, 255).astype(np.uint8))
+        self.robot.set_swept(q, joint, deltas[-1])
+        if effects.active:
+            if rng is None:
+                raise InvalidInputError("camera effects need a random generator (render_sweep(..., rng=...))")
+            frames = effects.apply(frames, rng)
         return frames
 
     def depth(self, T_camera_base: FloatArray | None = None, downscale: int = 1) -> NDArray[np.float32]:

@@ -32,7 +32,7 @@ class TwinRenderer(SceneRenderer):
         if self._twin is None:
             cam = self.intrinsics
             self._twin = Scene(SceneConfig(robot=self.robot.source, width=cam.width, height=cam.height,
-                                           fx=float(cam.K[0, 0]), camera_mount=False, speckle=False))
+                                           fx=float(cam.K[0, 0]), camera_mount=False, appearance="as_shipped"))
         return self._twin
 
     def prepare(self, downscale: int) -> None:

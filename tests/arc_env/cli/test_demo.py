@@ -59,3 +59,10 @@ def test_demo_without_enough_motions_exits_nonzero(capsys):
 def test_demo_robot_without_base_body(capsys):
     assert main(["demo", "--robot", "arm.xml"]) == 1
     assert "--base-body" in capsys.readouterr().err
+
+
+def test_the_command_lines_look_choices_are_the_simulators():
+    from arc_env import cli
+    from arc_env.sim import imaging
+
+    assert cli.REALISMS == imaging.REALISMS and cli.APPEARANCES == imaging.APPEARANCES

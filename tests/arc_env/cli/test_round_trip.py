@@ -197,3 +197,15 @@ def test_calibrate_needs_no_gl_context(recording, tmp_path):
     assert out.returncode == 0, out.stdout + out.stderr
     assert "SIM False" in out.stdout and result.is_file() and list(overlay.glob("overlay_motion_*.png"))
     assert "empty prefix" not in out.stdout + out.stderr and not (root / "MUJOCO_LOG.TXT").exists()
+
+
+def test_an_estimate_that_is_not_usable_is_written_as_such_without_exports(recording, tmp_path, capsys):
+    out = tmp_path / "result.json"
+    code = main(["calibrate", str(recording), "--output", str(out), "--quiet", "--max-std-mm", "0.001",
+                 "--overlay", str(tmp_path / "overlay")])
+    text = capsys.readouterr().out
+    assert code == 1 and "the estimate is too uncertain" in text and '"usable": false' in text
+    result = json.loads(out.read_text())
+    assert result["usable"] is False and "too uncertain" in result["unusable_reason"]
+    assert result["std"]["translation_mm"] and result["stage"] == "refined"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["result.json"]  # no exports, no overlays

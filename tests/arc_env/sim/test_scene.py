@@ -127,7 +127,7 @@ def test_depth_of_the_floor_matches_the_ray_plane_intersection(panda):
 def test_speckle_gives_the_tracker_corners_on_the_robot(panda):
     grey = cv2.cvtColor(panda.render(), cv2.COLOR_RGB2GRAY)
     mask = panda.robot_mask().astype(np.uint8)
-    plain = Scene(SceneConfig(width=640, height=360, speckle=False))
+    plain = Scene(SceneConfig(width=640, height=360, appearance="as_shipped"))
     plain.set_camera(panda.T_camera_base)
     grey_plain = cv2.cvtColor(plain.render(), cv2.COLOR_RGB2GRAY)
     plain.close()
