@@ -217,12 +217,13 @@ def write_files_atomic(files: dict[Path, str | bytes]) -> None:
     error is raised: none of the new files remains.
 
     Raises:
-        OSError: a target is an existing directory, or writing or moving failed (nothing is left behind).
+        InvalidInputError: a target is an existing directory (nothing is written).
+        OSError: writing or moving failed (nothing is left behind).
     """
     targets = [Path(p) for p in files]
     for path in targets:
         if path.is_dir():
-            raise IsADirectoryError(f"{path}: is a directory, not a file to write")
+            raise InvalidInputError(f"{path}: is a directory, not a file to write")
     staging: dict[Path, Path] = {}  # existing ancestor -> temporary folder in it
     staged: list[tuple[Path, Path]] = []  # (temporary file, target)
     moved: list[tuple[Path, Path | None]] = []  # (target, backup of what it replaced)

@@ -108,7 +108,7 @@ def test_write_files_atomic_commits_all_or_nothing(tmp_path):
         write_files_atomic({tmp_path / "a.txt": "new", tmp_path / "new_dir" / "c.png": b"c",
                             tmp_path / "not_a_dir" / "b.txt": b"b"})
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before  # a.txt restored, nothing new left
-    with pytest.raises(IsADirectoryError, match="is a directory"):
+    with pytest.raises(InvalidInputError, match="is a directory"):
         write_files_atomic({tmp_path / "b.txt": "b", tmp_path: "x"})
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
 
