@@ -88,6 +88,8 @@ def main(argv: list[str] | None = None) -> int:
                           "information they add (no image test: the twin has no camera image)")
     run.add_argument("--all-motions", action="store_true", help="do not stop at convergence")
     run.add_argument("--record", metavar="DIR", help="also save the sweeps as a recording in DIR")
+    run.add_argument("--resume", metavar="DIR",
+                     help="continue from the motions of an earlier run's recording (it is read, never written)")
     add_result_arguments(run)
     args = parser.parse_args(argv)
     if args.command == "demo" and args.synthetic and args.planner != "random":
@@ -118,6 +120,9 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as exc:
         print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # outputs are committed only at the end, all or nothing: none was written
+        print(f"arc-calib {args.command}: interrupted; no result written", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -7,7 +7,9 @@ also stay in view. Before the first estimate, motions are not checked for visibi
 to test), so the first few may miss the camera and be pruned. The driver executes each motion, its
 frames are tracked and the calibrator updated; the episode ends on convergence or after ``--motions``.
 The result is written like ``arc-calib calibrate``'s, and ``--record DIR`` also saves the sweeps as a
-recording.
+recording. If the driver fails (or Ctrl-C) mid-run, the motions recorded so far are kept in ``--record DIR``
+and ``--resume DIR`` continues from them: they are tracked and given to the calibrator first (and copied
+into the new ``--record``), then the planner goes on. The run's input ``--resume DIR`` is never written.
 
 The informed planner predicts occlusion from depth images; here they are drawn by the simulator's
 renderer of the same robot model (created only if the informed planner asks for one), so a real robot's
@@ -28,7 +30,7 @@ from arc_env.cli.progress import Progress
 from arc_env.cli.result import check_frame_names, check_outputs, finish
 from arc_env.robot.driver import Sweep, load_driver
 from arc_env.robot.exports import check_frame_name
-from arc_env.robot.recording import RecordingWriter
+from arc_env.robot.recording import Recording, RecordingWriter, read_recording
 from arc_env.robot.session import (
     CalibrationRun,
     CalibrationSession,
@@ -48,17 +50,23 @@ from solver.errors import ArcCalibError, InvalidInputError
 
 def run_online(args: argparse.Namespace) -> int:
     """``arc-calib run`` from parsed arguments; returns the exit code (0 only for a usable result)."""
-    check_outputs(Path(args.output), [], args.force, other_outputs=[Path(args.record)] if args.record else [])
+    resume = Path(args.resume) if getattr(args, "resume", None) else None
+    check_outputs(Path(args.output), [resume] if resume else [], args.force,
+                  other_outputs=[Path(args.record)] if args.record else [])
     if args.record and Path(args.output).resolve().is_relative_to(Path(args.record).resolve()):
         raise InvalidInputError(f"{args.output}: is inside --record {args.record}; keep the result out of "
                                 "the recording")
     if args.motions < 3:
         raise InvalidInputError("--motions must be >= 3")
     check_frame_names(args)
+    previous = read_recording(resume, min_motions=1) if resume else None
     driver = load_driver(args.driver)
     if args.base_frame is None:
         check_frame_name(driver.robot.base_body, f"--driver {args.driver}: the robot's base body "
                                                  "(or give --base-frame)")
+    if previous is not None and tuple(previous.joint_names) != tuple(driver.joint_names):
+        raise InvalidInputError(f"--resume {resume}: its joints {list(previous.joint_names)} are not the driver's "
+                                f"{list(driver.joint_names)}")
     writer: RecordingWriter | None = None
     if args.record:
         writer = RecordingWriter(Path(args.record), driver.intrinsics, driver.robot)
@@ -72,6 +80,8 @@ def run_online(args: argparse.Namespace) -> int:
     session = driver_session(driver, SessionConfig(), on_sweep)
     renderer = TwinRenderer(session.robot, driver.intrinsics) if informed else None
     session.renderer = renderer
+    diagnostics: list[MotionDiagnostic] = []
+    seconds = {"robot": 0.0, "tracking": 0.0, "solver": 0.0}
     try:
         session.reset(np.random.default_rng(args.seed))
         calibrator = session.calibrator
@@ -80,19 +90,23 @@ def run_online(args: argparse.Namespace) -> int:
         rng = np.random.default_rng(args.seed)
         planner = (InformedPlanner(session, rng, InformedPlannerConfig(bootstrap_image_tests=0)) if informed
                    else RandomPlanner(session, rng, RandomPlannerConfig(max_image_tests=0)))
-        diagnostics: list[MotionDiagnostic] = []
-        seconds = {"robot": 0.0, "tracking": 0.0, "solver": 0.0}
-        obs = observation(session)
         with Progress(args.motions, "motions", enabled=not args.quiet) as bar:
-            while session.n_motions < args.motions:
+            if previous is not None:
+                _replay(previous, session, writer, diagnostics, bar)
+            obs = observation(session)
+            while session.n_motions < args.motions and not (calibrator.state.converged and not args.all_motions):
                 try:
                     action = planner.plan(obs)
                 except PlanningError as exc:
                     bar.clear()
                     print(f"the planner found no motion: {exc}", file=sys.stderr)
                     break
-                result = session.step(np.asarray(action["Q"], dtype=np.float64), int(action["J"]),
-                                      float(action["delta"][0]))
+                try:
+                    result = session.step(np.asarray(action["Q"], dtype=np.float64), int(action["J"]),
+                                          float(action["delta"][0]))
+                except Exception as exc:  # the driver's own code failed (or Ctrl-C, below)
+                    bar.clear()
+                    raise DriverFailure(f"motion {session.n_motions} failed: {type(exc).__name__}: {exc}") from exc
                 if result.refused:
                     raise ArcCalibError(f"the session refused the planner's motion: {result.refused}")
                 assert result.motion is not None
@@ -105,14 +119,26 @@ def run_online(args: argparse.Namespace) -> int:
                 bar.step(f"joint {name}, {result.n_frames} frames, {m.n_tracks} tracks; "
                          f"{estimate_status(s)}{' [converged]' if s.converged else ''}")
                 obs = observation(session)
-                if s.converged and not args.all_motions:
-                    break
         for report, diag in zip(calibrator.reports, diagnostics, strict=True):
             copy_report(report, diag)
         if writer is not None:
             writer.close()
             writer = None
             print(f"recorded the sweeps to {args.record}", file=sys.stderr)
+    except (DriverFailure, KeyboardInterrupt) as exc:
+        kept = writer is not None and writer.n_motions > 0
+        if kept:
+            assert writer is not None
+            writer.close()
+            writer = None
+        what = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"the driver failed: {exc}"
+        how = (f"the {session.n_motions} motions done are kept in {args.record}; continue with "
+               f"--resume {args.record} --record NEW_DIR" if kept else
+               "no motion was kept (record with --record DIR to be able to --resume)")
+        print(f"arc-calib run: {what}; {how}. No result written.", file=sys.stderr)
+        if isinstance(exc, KeyboardInterrupt):
+            raise
+        return 1
     finally:
         if writer is not None:
             writer.abort()
@@ -125,6 +151,27 @@ def run_online(args: argparse.Namespace) -> int:
                          {**seconds, "total": time.perf_counter() - started})
     truth = getattr(driver, "T_camera_base_true", None)  # simulated drivers only
     return finish(run, args, args.base_frame or driver.robot.base_body, None, truth, started)
+
+
+class DriverFailure(ArcCalibError):
+    """The driver raised while executing a motion (the message names the motion and the error)."""
+
+
+def _replay(previous: Recording, session: CalibrationSession, writer: RecordingWriter | None,
+            diagnostics: list[MotionDiagnostic], bar: Progress) -> None:
+    """Feed a resumed recording's motions to the session (and copy them into the new recording)."""
+    names = previous.joint_names
+    for m in previous.usable:
+        assert m.joint is not None
+        frames = previous.frames(m)
+        outcome = session.replay(m.q_start, m.joint, m.delta, session.track(frames, m.delta))
+        if writer is not None:
+            positions = np.tile(m.q_start, (m.n_frames, 1))
+            positions[:, m.joint] += m.delta
+            writer.add_motion(names, positions, frames)
+        diagnostics.append(MotionDiagnostic(f"{len(diagnostics):03d}", names[m.joint], m.n_frames, outcome.n_tracks))
+        bar.step(f"resumed motion {m.name}: joint {names[m.joint]}, {outcome.n_tracks} tracks; "
+                 f"{estimate_status(session.calibrator.state) if session.calibrator else ''}")
 
 
 def observation(session: CalibrationSession) -> dict[str, object]:

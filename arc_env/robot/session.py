@@ -305,6 +305,33 @@ class CalibrationSession:
         """Keypoint tracks of one motion's frames (F images) with the joint offset deltas (F,) rad of each."""
         return list(track_keypoints(frames, deltas, self.config.tracker).tracks)
 
+    def replay(self, q_start: FloatArray, joint: int, deltas: FloatArray, tracks: Sequence[KeypointTrack]
+               ) -> MotionOutcome:
+        """Add a motion executed before (a recording being resumed): it counts as executed, like ``step``'s.
+
+        Args:
+            q_start: (n,) rad, Q.
+            joint: the joint that turned.
+            deltas: (F,) rad, its offset at each frame (the last is the turn Delta).
+            tracks: its keypoint tracks.
+        """
+        if self.calibrator is None:
+            raise InvalidInputError("call reset() before replay()")
+        q_start = self.robot.check_q(q_start)
+        self.executed.append((q_start.copy(), joint, float(deltas[-1])))
+        try:
+            report = self.calibrator.add_motion(MotionObservation(q_start=q_start, joint=joint,
+                                                                  tracks=tuple(tracks)))
+            outcome = MotionOutcome(joint, len(tracks), report.accepted, report.reason, report.stage_one, report,
+                                    full_tracks(tracks, deltas))
+        except ArcCalibError as exc:
+            outcome = MotionOutcome(joint, len(tracks), False, f"solver error: {exc}")
+        q_end = q_start.copy()
+        q_end[joint] += float(deltas[-1])
+        self.robot.set_q(q_end)
+        self.n_motions += 1
+        return outcome
+
     def observe(self, q_start: FloatArray, joint: int, tracks: Sequence[KeypointTrack],
                 update: bool = True) -> MotionOutcome:
         """Hand one motion's tracks to the calibrator (after checking the robot model accepts the motion).

@@ -239,3 +239,47 @@ def test_any_damage_to_the_text_files_keeps_the_invariants(recorded, tmp_path_fa
     assert _snapshot(rec) == before
     if code != 0:
         assert list(out.iterdir()) == []
+
+
+# -- Ctrl-C --------------------------------------------------------------------------------------
+def test_ctrl_c_while_tracking_leaves_no_output(rec, tmp_path, capsys, monkeypatch):
+    import arc_env.robot.session as session
+
+    calls = []
+
+    def interrupted(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    real = session.track_keypoints
+    monkeypatch.setattr(session, "track_keypoints", interrupted)
+    out = tmp_path / "out"
+    out.mkdir()
+    before = _snapshot(rec)
+    assert main(["calibrate", str(rec), "--output", str(out / "result.json"), "--quiet"]) == 130
+    assert "interrupted; no result written" in capsys.readouterr().err
+    assert _snapshot(rec) == before and list(out.iterdir()) == []
+
+
+def test_ctrl_c_while_committing_the_outputs_rolls_them_back(tmp_path, monkeypatch):
+    import arc_env.robot.exports as exports
+
+    (tmp_path / "result.json").write_text("an earlier result")
+    calls = []
+    real = os.replace
+
+    def interrupted(src, dst):
+        calls.append(dst)
+        if len(calls) == 3:  # after the earlier result was moved aside and the first new file moved in
+            raise KeyboardInterrupt
+        return real(src, dst)
+
+    monkeypatch.setattr(exports.os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        exports.write_files_atomic({tmp_path / "result.json": "new", tmp_path / "result.calib": "new",
+                                    tmp_path / "overlay" / "a.png": b"png"})
+    monkeypatch.setattr(exports.os, "replace", real)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["result.json"]
+    assert (tmp_path / "result.json").read_text() == "an earlier result"

@@ -108,3 +108,48 @@ def test_the_informed_planner_plans_without_a_renderer():
         assert not session.refusal_reason(action["Q"], int(action["J"]), float(action["delta"][0]))
     finally:
         d.close()
+
+
+class _FailsOnFourthSweep(SimulatedDriver):
+    """A driver that breaks (e.g. a protective stop) during its fourth sweep."""
+
+    def __init__(self):
+        super().__init__(width=320, height=180, seed=2, fps=8.0)
+
+    def sweep(self, joint, delta):
+        if self.n_sweeps == 3:
+            raise RuntimeError("protective stop")
+        return super().sweep(joint, delta)
+
+
+def test_a_driver_failure_keeps_the_motions_done_and_resume_continues(tmp_path, capsys):
+    rec, out = tmp_path / "rec", tmp_path / "result.json"
+    code = main(["run", "--driver", "tests.arc_env.cli.test_run:_FailsOnFourthSweep", "--motions", "6",
+                 "--output", str(out), "--record", str(rec), "--all-motions", "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 1 and "protective stop" in err and "Traceback" not in err
+    assert f"--resume {rec}" in err and not out.exists()
+    kept = read_recording(rec)
+    assert len(kept.motions) == 3  # the three finished sweeps; the failed one is not half-written
+    before = {p: p.read_bytes() for p in rec.rglob("*") if p.is_file()}
+    rec2 = tmp_path / "rec2"
+    code = main(["run", "--driver", "tests.arc_env.cli.test_run:small_driver", "--motions", "5", "--resume", str(rec),
+                 "--output", str(out), "--record", str(rec2), "--all-motions", "--quiet"])
+    captured = capsys.readouterr()
+    assert code in (0, 1) and "Traceback" not in captured.err, captured.err
+    assert {p: p.read_bytes() for p in rec.rglob("*") if p.is_file()} == before  # the resumed input untouched
+    resumed = read_recording(rec2)
+    assert len(resumed.motions) == 5  # the three resumed, then two new
+    for old, new in zip(kept.motions, resumed.motions[:3], strict=True):
+        np.testing.assert_array_equal(old.q_start, new.q_start)
+        assert old.joint == new.joint
+
+
+def test_resume_refuses_writing_into_the_resumed_recording(tmp_path, capsys):
+    rec = tmp_path / "rec"
+    assert main(["run", "--driver", "tests.arc_env.cli.test_run:small_driver", "--motions", "3",
+                 "--output", str(tmp_path / "r.json"), "--record", str(rec), "--all-motions", "--quiet"]) == 1
+    capsys.readouterr()
+    assert main(["run", "--driver", "tests.arc_env.cli.test_run:small_driver", "--resume", str(rec),
+                 "--output", str(rec / "result.json")]) == 2
+    assert "is inside the input" in capsys.readouterr().err
