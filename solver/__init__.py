@@ -37,7 +37,7 @@ from solver.frames import (
 from solver.kinematics import PANDA, AxisFunction, DHChain
 from solver.motion import MotionConfig, MotionGeometry, estimate_motion_geometry
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
-from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig, MotionReport
+from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig, FocalCheck, MotionReport
 from solver.refinement import RefinementConfig, RefinementResult, build_track_set, pose_information, refine
 from solver.synthetic import (
     SyntheticConfig,
@@ -63,6 +63,7 @@ __all__ = [
     "DHChain",
     "DegenerateMotionError",
     "DegenerateTrajectoryError",
+    "FocalCheck",
     "InsufficientMotionsError",
     "InvalidInputError",
     "KeypointTrack",

@@ -147,8 +147,9 @@ def run_online(args: argparse.Namespace) -> int:
         close = getattr(driver, "close", None)
         if callable(close):
             close()
-    run = CalibrationRun(f"driver {args.driver}", calibrator, diagnostics,
-                         {**seconds, "total": time.perf_counter() - started})
+    run = CalibrationRun(f"driver {args.driver}", calibrator, diagnostics, seconds)
+    run.check_focal()
+    run.seconds["total"] = time.perf_counter() - started
     truth = getattr(driver, "T_camera_base_true", None)  # simulated drivers only
     return finish(run, args, args.base_frame or driver.robot.base_body, None, truth, started)
 

@@ -39,7 +39,7 @@ from scipy.spatial.transform import Rotation
 from solver.arrays import FloatArray
 from solver.errors import InvalidInputError
 from solver.frames import check_transform, quaternion_xyzw_from_matrix
-from solver.pipeline import Calibrator
+from solver.pipeline import Calibrator, FocalCheck
 
 #: Result file format written by ``calibrate`` and ``run``.
 RESULT_FORMAT = "arc-calib result 1"
@@ -293,6 +293,7 @@ class FinishedCalibration(Protocol):
     calibrator: Calibrator
     diagnostics: Sequence[MotionRow]
     seconds: dict[str, float]
+    focal_check: FocalCheck | None
 
     @property
     def n_accepted(self) -> int:
@@ -338,6 +339,9 @@ def result_dict(run: FinishedCalibration, edge: ParentChild, exports: dict[str, 
              "reason": d.reason, "inlier_tracks": d.inlier_tracks, "linear_stage": d.linear,
              "axis_error_rad": d.axis_error_rad, "plane_distance_m": d.plane_distance_m, "note": d.note}
             for d in run.diagnostics],
+        "intrinsics_check": None if run.focal_check is None else {
+            "focal_fits": run.focal_check.fits, "best_focal_scale": run.focal_check.best_scale,
+            "rms_given_px": run.focal_check.rms_given_px, "rms_best_px": run.focal_check.rms_best_px},
         "exports": {k: p.name for k, p in exports.items()},
         "seconds": {k: round(v, 2) for k, v in run.seconds.items()},
     }

@@ -38,7 +38,7 @@ from planners.transit import TransitConfig, TransitPath, plan_transit
 from solver.arrays import FloatArray, ImageArray
 from solver.errors import ArcCalibError, InvalidInputError
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
-from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig, MotionReport
+from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig, FocalCheck, MotionReport
 
 #: The calibrator of online sessions (the env, ``run``): the bundle adjustment gets at most 40 tracks per
 #: motion and 15 frames per track (evenly spaced over the sweep), a fifth of what the tracker delivers at
@@ -447,6 +447,13 @@ class CalibrationRun:
     diagnostics: list[MotionDiagnostic]
     seconds: dict[str, float] = field(default_factory=dict)
     recording: Recording | None = None
+    focal_check: FocalCheck | None = None
+
+    def check_focal(self) -> None:
+        """Run the focal-length consistency check on the final estimate (``Calibrator.focal_check``)."""
+        t0 = time.perf_counter()
+        self.focal_check = self.calibrator.focal_check()
+        self.seconds["intrinsics check"] = time.perf_counter() - t0
 
     @property
     def n_accepted(self) -> int:
@@ -543,8 +550,10 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
         seconds["solver"] += time.perf_counter() - t0
     for r in calibrator.reports:
         copy_report(r, by_report[r.index])
+    run = CalibrationRun(str(recording.path), calibrator, diagnostics, seconds, recording)
+    run.check_focal()
     seconds["total"] = time.perf_counter() - started
-    return CalibrationRun(str(recording.path), calibrator, diagnostics, seconds, recording)
+    return run
 
 
 def estimate_status(state: CalibrationState) -> str:
@@ -567,7 +576,11 @@ def unusable_reason(run: CalibrationRun, criteria: UsableCriteria) -> str:
     if not run.calibrator.reports:
         return (f"none of the {len(run.diagnostics)} motions gave keypoint tracks (pruned, or nothing moved "
                 "in the images: is the robot in view?)")
-    return state_unusable_reason(run.calibrator.state, run.n_accepted, criteria)
+    why = state_unusable_reason(run.calibrator.state, run.n_accepted, criteria)
+    if not why and run.focal_check is not None and not run.focal_check.fits:
+        where = f" ({run.recording.path / 'camera.json'})" if run.recording is not None else ""
+        why = run.focal_check.message + where
+    return why
 
 
 def state_unusable_reason(s: CalibrationState, n_accepted: int, criteria: UsableCriteria) -> str:
