@@ -5,19 +5,23 @@ the camera's intrinsics, the calibration so far and the motions already executed
 true camera pose: in simulation the truth stays in the simulator, on a real robot there is none.
 ``arc_env.robot.session.CalibrationSession`` implements the context (the env exposes its session), so
 the same planner serves the simulator and a real robot. A renderer is optional: the simulator offers
-one (image tests, depth for occlusion), a real robot may not; planners do without.
+one (image tests, depth for occlusion), a real robot may not; planners do without. The estimate reaches
+a planner through ``plan(observation)`` (the env's observation; ``observation_from_estimate`` builds its
+estimate keys, ``estimate_from_observation`` reads them back).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol
+from typing import Any, Protocol
 
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from solver.arrays import FloatArray, ImageArray, IndexArray, MaskArray
+from solver.frames import transform_from_rt
 from solver.motion import MotionGeometry
 from solver.observations import CameraIntrinsics
 from solver.pipeline import CalibrationState, CalibratorConfig, MotionReport
@@ -157,4 +161,24 @@ class PlanningContext(Protocol):
         ...
 
 
-__all__ = ["CalibrationView", "CollisionQueries", "PlanningContext", "RobotKinematics", "SceneRenderer"]
+def estimate_from_observation(observation: dict[str, Any]) -> FloatArray | None:
+    """The estimate of ``T_camera_base`` (4, 4) an env observation holds, or None without one."""
+    if not int(observation.get("has_estimate", 0)):
+        return None
+    R_camera_base = Rotation.from_rotvec(np.asarray(observation["rotation"], dtype=np.float64)).as_matrix()
+    return transform_from_rt(R_camera_base, np.asarray(observation["translation"], dtype=np.float64))
+
+
+def observation_from_estimate(T_camera_base: FloatArray | None) -> dict[str, Any]:
+    """The estimate keys of an env observation: ``has_estimate``, ``rotation`` (3,) rotvec, ``translation`` (3,) m.
+
+    The inverse of ``estimate_from_observation``; without an estimate only ``{"has_estimate": 0}``.
+    """
+    if T_camera_base is None:
+        return {"has_estimate": 0}
+    return {"has_estimate": 1, "rotation": Rotation.from_matrix(T_camera_base[:3, :3]).as_rotvec(),
+            "translation": T_camera_base[:3, 3].astype(np.float64).copy()}
+
+
+__all__ = ["CalibrationView", "CollisionQueries", "PlanningContext", "RobotKinematics", "SceneRenderer",
+           "estimate_from_observation", "observation_from_estimate"]

@@ -13,13 +13,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from planners.context import PlanningContext, SceneRenderer
+from planners.context import PlanningContext, SceneRenderer, estimate_from_observation
 from planners.errors import PlanningError
 from planners.sampling import check_sampling, random_motion
 from solver.arrays import FloatArray
-from solver.frames import transform_from_rt
 
 
 @dataclass(frozen=True)
@@ -157,11 +155,3 @@ def planner_setup(context: PlanningContext, rng: np.random.Generator | None,
 def motion_action(q: FloatArray, joint: int, delta: float) -> dict[str, Any]:
     """The env action {"Q": (n,) rad, "J": joint, "delta": (1,) rad} of a motion."""
     return {"Q": q, "J": joint, "delta": np.array([delta])}
-
-
-def estimate_from_observation(observation: dict[str, Any]) -> FloatArray | None:
-    """The estimate of ``T_camera_base`` (4, 4) an env observation holds, or None without one."""
-    if not int(observation.get("has_estimate", 0)):
-        return None
-    R_camera_base = Rotation.from_rotvec(np.asarray(observation["rotation"], dtype=np.float64)).as_matrix()
-    return transform_from_rt(R_camera_base, np.asarray(observation["translation"], dtype=np.float64))

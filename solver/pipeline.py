@@ -32,7 +32,7 @@ from solver.errors import (
 from solver.kinematics import AxisFunction
 from solver.motion import MotionConfig, MotionGeometry, estimate_motion_geometry, track_moved
 from solver.observations import CameraIntrinsics, MotionObservation
-from solver.refinement import RefinementConfig, RefinementResult, build_track_set, refine
+from solver.refinement import RefinementConfig, RefinementResult, TrackSet, build_track_set, refine
 
 Stage = Literal["none", "linear", "refined"]
 
@@ -299,14 +299,9 @@ class Calibrator:
         if start is None and linear is not None:
             start = linear.T_camera_base
         if cfg.refine and start is not None:
-            tracks = build_track_set(
-                [(self._motions[k].axis_base, self._motions[k].point_base, self._motions[k].tracks)
-                 for k in live], self.intrinsics.focal, cfg.refinement.min_track_frames)
-            warm = np.concatenate([
-                self._motions[k].points if self._motions[k].points is not None
-                else np.full((len(self._motions[k].tracks), 3), np.nan) for k in live])
+            tracks = self._track_set(live)
             try:
-                refined = refine(tracks, start, cfg.refinement, points_init=warm)
+                refined = refine(tracks, start, cfg.refinement, points_init=self._warm_points(live))
                 with np.errstate(invalid="ignore"):  # a negative variance is caught just below
                     std = np.sqrt(np.diag(refined.covariance))
                 if (not np.all(np.isfinite(std)) or np.any(std[:3] > cfg.max_std_rotation)
@@ -371,20 +366,28 @@ class Calibrator:
         """
         if self._refined is None or self.state.stage != "refined":
             return None
-        cfg = self.config
         live = [k for k, m in enumerate(self._motions) if m is not None]
-        warm = np.concatenate([self._motions[k].points if self._motions[k].points is not None
-                               else np.full((len(self._motions[k].tracks), 3), np.nan) for k in live])
+        warm = self._warm_points(live)
         rms = []
         for scale in scales:
-            motions = [(self._motions[k].axis_base, self._motions[k].point_base,
-                        [(uv / scale, delta) for uv, delta in self._motions[k].tracks]) for k in live]
-            tracks = build_track_set(motions, self.intrinsics.focal * scale, cfg.refinement.min_track_frames)
             try:
-                rms.append(refine(tracks, self._refined.T_camera_base, cfg.refinement, points_init=warm).rms_px)
+                rms.append(refine(self._track_set(live, scale), self._refined.T_camera_base, self.config.refinement,
+                                  points_init=warm).rms_px)
             except (ArcCalibError, np.linalg.LinAlgError):
                 rms.append(np.nan)
         return FocalCheck.from_scan(np.asarray(scales, dtype=np.float64), np.asarray(rms))
+
+    def _track_set(self, live: list[int], focal_scale: float = 1.0) -> TrackSet:
+        """The bundle adjustment's observations of motions ``live``, for focal lengths scaled by focal_scale."""
+        motions = [(self._motions[k].axis_base, self._motions[k].point_base,
+                    self._motions[k].tracks if focal_scale == 1.0 else
+                    [(uv / focal_scale, delta) for uv, delta in self._motions[k].tracks]) for k in live]
+        return build_track_set(motions, self.intrinsics.focal * focal_scale, self.config.refinement.min_track_frames)
+
+    def _warm_points(self, live: list[int]) -> FloatArray:
+        """(T, 3) m: the last refined point of every track of motions ``live``, NaN where unknown."""
+        return np.concatenate([self._motions[k].points if self._motions[k].points is not None
+                               else np.full((len(self._motions[k].tracks), 3), np.nan) for k in live])
 
     def motion_geometry(self, index: int) -> MotionGeometry | None:
         """Stage one's axis and reference plane of motion ``index`` (None: pruned or no axis)."""

@@ -100,7 +100,8 @@ def check_outputs(output: Path, inputs: Sequence[Path], force: bool = False, ove
             of them or inside one.
         force: allow replacing existing output files (never an input, never a directory).
         overlay_dir: ``--overlay DIR``, if given.
-        other_outputs: further outputs of the run (e.g. ``run --record DIR``).
+        other_outputs: folders the run creates (e.g. ``run --record DIR``): they too must stay out of the
+            inputs, and the result and its exports must stay out of them.
 
     Raises:
         InvalidInputError: an output is not .json, its directory does not exist, it is (or is inside)
@@ -111,14 +112,16 @@ def check_outputs(output: Path, inputs: Sequence[Path], force: bool = False, ove
         raise InvalidInputError(f"--output must be a .json file, got {output}")
     if not output.parent.is_dir():
         raise InvalidInputError(f"--output: directory {output.parent} does not exist")
-    resolved_inputs = [Path(p).resolve() for p in inputs]
     files = [output, *export_paths(output).values()]
     for path in [*files, *([overlay_dir] if overlay_dir is not None else []), *other_outputs]:
-        where = Path(path).resolve()
-        for source in resolved_inputs:
-            if where == source or where.is_relative_to(source):
-                raise InvalidInputError(f"{path}: is inside the input {source}; write outputs elsewhere "
-                                        "(ARC-Calib never writes into what it reads)")
+        for source in inputs:
+            if _within(path, source):
+                raise InvalidInputError(f"{path}: is inside the input {Path(source).resolve()}; write outputs "
+                                        "elsewhere (ARC-Calib never writes into what it reads)")
+        for folder in other_outputs:
+            if path in files and _within(path, folder):
+                raise InvalidInputError(f"{path}: is inside {folder}, which this run creates; keep the result "
+                                        "out of it")
     for path in files:
         if path.is_dir():
             raise InvalidInputError(f"{path}: is a directory; --output names the result file")
@@ -131,6 +134,11 @@ def check_outputs(output: Path, inputs: Sequence[Path], force: bool = False, ove
         if earlier and not force:
             raise InvalidInputError(f"--overlay {overlay_dir}: already holds {earlier[0].name} (and "
                                     f"{len(earlier) - 1} more); use --force to replace them")
+
+
+def _within(path: Path, folder: Path) -> bool:
+    """Whether ``path`` is ``folder`` or inside it, symlinks resolved."""
+    return Path(path).resolve().is_relative_to(Path(folder).resolve())
 
 
 def check_frame_names(args: argparse.Namespace) -> None:

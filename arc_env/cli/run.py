@@ -24,7 +24,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from arc_env.cli.progress import Progress
 from arc_env.cli.result import check_frame_names, check_outputs, finish
@@ -41,6 +40,7 @@ from arc_env.robot.session import (
     estimate_status,
 )
 from arc_env.sim.twin import TwinRenderer
+from planners.context import observation_from_estimate
 from planners.errors import PlanningError
 from planners.informed import InformedPlanner, InformedPlannerConfig
 from planners.random_planner import RandomPlanner, RandomPlannerConfig
@@ -53,9 +53,6 @@ def run_online(args: argparse.Namespace) -> int:
     resume = Path(args.resume) if getattr(args, "resume", None) else None
     check_outputs(Path(args.output), [resume] if resume else [], args.force,
                   other_outputs=[Path(args.record)] if args.record else [])
-    if args.record and Path(args.output).resolve().is_relative_to(Path(args.record).resolve()):
-        raise InvalidInputError(f"{args.output}: is inside --record {args.record}; keep the result out of "
-                                "the recording")
     if args.motions < 3:
         raise InvalidInputError("--motions must be >= 3")
     check_frame_names(args)
@@ -93,7 +90,7 @@ def run_online(args: argparse.Namespace) -> int:
         with Progress(args.motions, "motions", enabled=not args.quiet) as bar:
             if previous is not None:
                 _replay(previous, session, writer, diagnostics, bar)
-            obs = observation(session)
+            obs = observation_from_estimate(calibrator.state.T_camera_base)
             while session.n_motions < args.motions and not (calibrator.state.converged and not args.all_motions):
                 try:
                     action = planner.plan(obs)
@@ -118,7 +115,7 @@ def run_online(args: argparse.Namespace) -> int:
                 s = calibrator.state
                 bar.step(f"joint {name}, {result.n_frames} frames, {m.n_tracks} tracks; "
                          f"{estimate_status(s)}{' [converged]' if s.converged else ''}")
-                obs = observation(session)
+                obs = observation_from_estimate(calibrator.state.T_camera_base)
         for report, diag in zip(calibrator.reports, diagnostics, strict=True):
             copy_report(report, diag)
         if writer is not None:
@@ -173,13 +170,3 @@ def _replay(previous: Recording, session: CalibrationSession, writer: RecordingW
         diagnostics.append(MotionDiagnostic(f"{len(diagnostics):03d}", names[m.joint], m.n_frames, outcome.n_tracks))
         bar.step(f"resumed motion {m.name}: joint {names[m.joint]}, {outcome.n_tracks} tracks; "
                  f"{estimate_status(session.calibrator.state) if session.calibrator else ''}")
-
-
-def observation(session: CalibrationSession) -> dict[str, object]:
-    """What the planners read of the estimate: {"has_estimate", "rotation" (3,) rotvec, "translation" (3,) m}."""
-    assert session.calibrator is not None
-    T_camera_base = session.calibrator.state.T_camera_base
-    if T_camera_base is None:
-        return {"has_estimate": 0}
-    return {"has_estimate": 1, "rotation": Rotation.from_matrix(T_camera_base[:3, :3]).as_rotvec(),
-            "translation": T_camera_base[:3, 3].copy()}

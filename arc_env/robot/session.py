@@ -295,11 +295,16 @@ class CalibrationSession:
         self.robot.set_q(acquired.q_end)
         seconds["transit"] = transit.seconds
         t0 = time.perf_counter()
-        outcome = replace(self.observe(acquired.q_start, joint, tracks),
-                          n_full_tracks=full_tracks(tracks, acquired.deltas))
+        outcome = self._observe_executed(acquired.q_start, joint, acquired.deltas, tracks)
         seconds["solver"] = time.perf_counter() - t0
-        self.n_motions += 1
         return StepResult("", transit, outcome, len(acquired.deltas), seconds)
+
+    def _observe_executed(self, q_start: FloatArray, joint: int, deltas: FloatArray,
+                          tracks: Sequence[KeypointTrack]) -> MotionOutcome:
+        """``observe`` an executed motion (deltas (F,) rad) and count it; the outcome counts its full tracks."""
+        outcome = replace(self.observe(q_start, joint, tracks), n_full_tracks=full_tracks(tracks, deltas))
+        self.n_motions += 1
+        return outcome
 
     def track(self, frames: Sequence[ImageArray], deltas: FloatArray) -> list[KeypointTrack]:
         """Keypoint tracks of one motion's frames (F images) with the joint offset deltas (F,) rad of each."""
@@ -319,18 +324,8 @@ class CalibrationSession:
             raise InvalidInputError("call reset() before replay()")
         q_start = self.robot.check_q(q_start)
         self.executed.append((q_start.copy(), joint, float(deltas[-1])))
-        try:
-            report = self.calibrator.add_motion(MotionObservation(q_start=q_start, joint=joint,
-                                                                  tracks=tuple(tracks)))
-            outcome = MotionOutcome(joint, len(tracks), report.accepted, report.reason, report.stage_one, report,
-                                    full_tracks(tracks, deltas))
-        except ArcCalibError as exc:
-            outcome = MotionOutcome(joint, len(tracks), False, f"solver error: {exc}")
-        q_end = q_start.copy()
-        q_end[joint] += float(deltas[-1])
-        self.robot.set_q(q_end)
-        self.n_motions += 1
-        return outcome
+        self.robot.set_swept(q_start, joint, float(deltas[-1]))
+        return self._observe_executed(q_start, joint, deltas, tracks)
 
     def observe(self, q_start: FloatArray, joint: int, tracks: Sequence[KeypointTrack],
                 update: bool = True) -> MotionOutcome:

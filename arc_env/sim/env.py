@@ -9,11 +9,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from scipy.spatial.transform import Rotation
 
 from arc_env.robot.session import ONLINE_CALIBRATOR, Acquisition, CalibrationSession, SessionConfig
 from arc_env.robot.tracking import TrackerConfig
 from arc_env.sim.scene import Scene, SceneConfig, SceneRenderer
+from planners.context import observation_from_estimate
 from planners.transit import TransitConfig
 from solver.arrays import FloatArray, ImageArray
 from solver.errors import InvalidInputError
@@ -355,10 +355,7 @@ class ArcCalibEnv(gym.Env):
         if self.session.calibrator is None:
             return obs
         s = self.session.calibrator.state
-        if s.T_camera_base is not None:
-            obs["translation"] = s.T_camera_base[:3, 3].astype(np.float64).copy()
-            obs["rotation"] = Rotation.from_matrix(s.T_camera_base[:3, :3]).as_rotvec()
-            obs["has_estimate"] = 1
+        obs.update(observation_from_estimate(s.T_camera_base))
         if s.gamma is not None:
             obs["gamma"] = np.asarray(s.gamma, dtype=np.float64).copy()
         if s.std is not None:

@@ -101,7 +101,7 @@ class CameraEffects:
         """Gain drift, noise and lossy video on a sweep's frames (F images (H, W, 3) uint8 RGB); new list."""
         out = [np.asarray(f) for f in frames]
         if not self.active or not out:
-            return list(out)
+            return out
         n = len(out)
         if self.gain_drift:
             walk = np.cumsum(rng.normal(0.0, 1.0, n))

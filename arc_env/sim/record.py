@@ -100,8 +100,7 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
         obs, _ = env.reset(seed=s.seed)
         planner = RandomPlanner(env.session, np.random.default_rng(s.seed))
         writer = RecordingWriter(out, target, s.robot, video=s.video, fps=env.config.fps)
-        robot = env.scene.robot
-        names = robot.joint_names
+        names = env.scene.robot.joint_names
         for _ in range(s.motions):
             action = planner.plan(obs)
             obs, _, _, _, info = env.step(action)
@@ -113,7 +112,6 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
                                             np.random.default_rng([s.seed, writer.n_motions]))
             if distorter:
                 frames = [distorter(image) for image in frames]
-            robot.set_swept(q, joint, delta)
             positions = np.tile(q, (len(deltas), 1))
             positions[:, joint] += deltas
             writer.add_motion(names, positions, frames)

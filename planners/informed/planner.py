@@ -68,7 +68,7 @@ from typing import Any
 
 import numpy as np
 
-from planners.context import PlanningContext
+from planners.context import PlanningContext, estimate_from_observation
 from planners.errors import PlanningError
 from planners.informed.candidates import (
     CandidateSampler,
@@ -79,7 +79,7 @@ from planners.informed.candidates import (
 from planners.informed.config import InformedPlannerConfig
 from planners.informed.hypotheses import pose_hypotheses
 from planners.informed.information import InformationModel, ScoredMotion
-from planners.random_planner import estimate_from_observation, image_change, motion_action, planner_setup
+from planners.random_planner import image_change, motion_action, planner_setup
 from solver.arrays import FloatArray
 from solver.errors import ArcCalibError
 from solver.motion import fibonacci_sphere
