@@ -12,6 +12,7 @@ import os
 import shutil
 from pathlib import Path
 
+import cv2
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -181,6 +182,62 @@ def test_damaged_pngs(rec, tmp_path, capsys, damage):
     data = png.read_bytes()
     png.write_bytes(data[: len(data) // 3] if damage == "truncated" else b"\x89PNG garbage" * 10)
     _refused(rec, tmp_path / "out", capsys, 2, (str(png),))
+
+
+@pytest.fixture(scope="module")
+def recorded_video(tmp_path_factory):
+    out = tmp_path_factory.mktemp("hostile_video") / "rec"
+    record_episode(RecordSettings(out=out, video=True, **TINY))
+    return out
+
+
+@pytest.fixture
+def video_rec(recorded_video, tmp_path):
+    dst = tmp_path / "video_rec"
+    shutil.copytree(recorded_video, dst)
+    return dst
+
+
+def _drop_last_frame(path: Path) -> None:
+    """Re-encode an MP4 without its last frame (a recorder that stopped one frame early)."""
+    capture = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, image = capture.read()
+        if not ok:
+            break
+        frames.append(image)
+    capture.release()
+    h, w = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 8.0, (w, h))
+    for image in frames[:-1]:
+        writer.write(image)
+    writer.release()
+
+
+@pytest.mark.parametrize("damage", ["head", "half", "tail", "garbage", "one frame short", "empty"])
+def test_damaged_mp4s(video_rec, tmp_path, capsys, damage):
+    video = video_rec / "motions" / "001" / "video.mp4"
+    data = video.read_bytes()
+    if damage == "one frame short":
+        _drop_last_frame(video)
+    else:
+        cut = {"head": 64, "half": len(data) // 2, "tail": len(data) - 100}.get(damage)
+        video.write_bytes(data[:cut] if cut is not None else
+                          b"" if damage == "empty" else b"\x00\x00\x00\x18ftypisom" + os.urandom(4096))
+    text = _refused(video_rec, tmp_path / "out", capsys, 2, (str(video),))
+    if damage == "one frame short":
+        assert "joints.csv" in text
+
+
+def test_an_intact_mp4_recording_passes_the_checks(video_rec, tmp_path, capsys):
+    """The control: undamaged, the same videos are read and tracked (this tiny episode is too small to
+    give tracks, so calibrate ends with exit 1 and no result, not with exit 2 naming a file)."""
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main(["calibrate", str(video_rec), "--output", str(out / "result.json"), "--quiet"]) == 1
+    text = capsys.readouterr().out
+    assert "motions: 4, accepted 0, rejected 4" in text and "video.mp4" not in text
 
 
 def test_a_missing_file(rec, tmp_path, capsys):
