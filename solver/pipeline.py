@@ -31,8 +31,9 @@ from solver.errors import (
 )
 from solver.kinematics import AxisFunction
 from solver.motion import MotionConfig, MotionGeometry, estimate_motion_geometry, track_moved
-from solver.observations import CameraIntrinsics, MotionObservation
+from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
 from solver.refinement import RefinementConfig, RefinementResult, TrackSet, build_track_set, refine
+from solver.rigid_axis import RigidAxisConfig, geometry_from_rigid_fit, rigid_axis_of_motion
 
 Stage = Literal["none", "linear", "refined"]
 
@@ -42,7 +43,13 @@ class CalibratorConfig:
     """Settings of the whole calibration.
 
     Attributes:
-        motion: per-motion estimation and stage-one pruning.
+        motion: per-motion estimation and stage-one pruning (the paper's conic front end).
+        rigid_axis: the rigid front end (``solver.rigid_axis``): each motion's axis from the rigid
+            motion of all its tracks by the known angles, and the tracks that do not move rigidly
+            (sliding on silhouettes, highlights, drift) dropped before the bundle adjustment. Its
+            axis is used when it has one, else the conics'; None (the default for now: on the
+            recordings measured so far it helps on realistic images, not on painted ones, and costs
+            several seconds per motion): the paper's conic front end only.
         refinement: bundle adjustment.
         convergence: the sliding-window monitor.
         refine: run the bundle adjustment (off: the paper's linear method only).
@@ -63,6 +70,7 @@ class CalibratorConfig:
     """
 
     motion: MotionConfig = field(default_factory=MotionConfig)
+    rigid_axis: RigidAxisConfig | None = None
     refinement: RefinementConfig = field(default_factory=RefinementConfig)
     convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
     refine: bool = True
@@ -92,6 +100,11 @@ class MotionReport:
         eps_d: m, the plane distance against the current estimate (None likewise).
         stage_one: "" or why stage one (no estimate needed) rejected its axis.
         n_inlier_tracks: tracks the bundle adjustment kept.
+        front_end: which front end gave the axis: "rigid", "conics" or "" (none).
+        conics: "" or why the conic front end gave no axis.
+        rigid: "" or why the rigid front end gave no axis (also "" when it is off).
+        n_inconsistent_tracks: tracks the rigid front end dropped (they do not move rigidly with the
+            others by the known angles).
     """
 
     index: int
@@ -104,6 +117,10 @@ class MotionReport:
     eps_d: float | None = None
     stage_one: str = ""
     n_inlier_tracks: int = 0
+    front_end: str = ""
+    conics: str = ""
+    rigid: str = ""
+    n_inconsistent_tracks: int = 0
 
 
 @dataclass(frozen=True)
@@ -256,9 +273,14 @@ class Calibrator:
         else:
             try:
                 geometry = estimate_motion_geometry(obs, self.intrinsics, mcfg, self._rng)
+                report.front_end = "conics"
             except DegenerateMotionError as exc:
                 geometry = None
-                report.stage_one = str(exc)
+                report.conics = str(exc)
+            if self.config.rigid_axis is not None:
+                moving, geometry = self._rigid_front_end(obs, moving, geometry, report)
+            if geometry is None:
+                report.stage_one = "; ".join(r for r in (report.conics, report.rigid) if r)
             if len(moving) > self.config.max_tracks_per_motion:
                 pick = self._rng.choice(len(moving), self.config.max_tracks_per_motion, replace=False)
                 moving = [moving[k] for k in sorted(pick)]
@@ -395,6 +417,26 @@ class Calibrator:
             raise InvalidInputError(f"no motion {index}: {len(self._motions)} added")
         m = self._motions[index]
         return m.geometry if m is not None else None
+
+    def _rigid_front_end(self, obs: MotionObservation, moving: list[KeypointTrack],
+                         conics: MotionGeometry | None, report: MotionReport
+                         ) -> tuple[list[KeypointTrack], MotionGeometry | None]:
+        """Run the rigid front end: (the tracks that move rigidly, the motion's geometry).
+
+        Without a fit (too few tracks, no shared frames, an unfixed axis) the tracks and the conics'
+        geometry stay as they are and ``report.rigid`` says why.
+        """
+        starts = [] if conics is None else [(conics.axis_cam, conics.reference_cam)]
+        try:
+            fit = rigid_axis_of_motion(MotionObservation(obs.q_start, obs.joint, tuple(moving)), self.intrinsics,
+                                       self.config.rigid_axis, starts)
+        except DegenerateMotionError as exc:
+            report.rigid = str(exc)
+            return moving, conics
+        report.n_inconsistent_tracks = int(np.sum(~fit.track_inliers))
+        report.front_end = "rigid"
+        kept = [t for t, ok in zip(moving, fit.track_inliers, strict=True) if ok]
+        return kept, geometry_from_rigid_fit(fit)
 
     def _correspondence(self, k: int) -> AxisCorrespondence:
         m = self._motions[k]

@@ -26,6 +26,7 @@ from solver import (
     pose_errors,
     sample_camera_pose,
 )
+from solver.rigid_axis import RigidAxisConfig
 
 #: Noise-free recovery at the end of an episode (the issue's bound).
 EXACT_ROT, EXACT_TRANS = 1e-6, 1e-6
@@ -72,6 +73,22 @@ def test_noisy_episode_is_accurate_and_its_covariance_honest():
     assert xi @ np.linalg.solve(s.covariance, xi) < CHI2_6_999
     assert s.std.shape == (6,) and np.all(s.std > 0)
     assert 0.3 < s.rms_px < 1.0  # ~ sqrt(2) * 0.5 px / sqrt(2) per coordinate, plus kept outliers
+
+
+def test_the_rigid_front_end_gives_axes_and_drops_outlier_tracks():
+    rng = np.random.default_rng(4)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.3, outlier_fraction=0.1, tracks_per_motion=25),
+                           rng)
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(rigid_axis=RigidAxisConfig()))
+    for _ in range(6):
+        cal.add_motion(scene.random_motion(rng).observation)
+    fronts = [r.front_end for r in cal.reports]
+    assert fronts.count("rigid") >= 4, [(r.front_end, r.rigid, r.conics) for r in cal.reports]
+    assert all(r.rigid == "" for r in cal.reports if r.front_end == "rigid")
+    assert sum(r.n_inconsistent_tracks for r in cal.reports) >= 1  # the scene's outlier tracks
+    rot, trans = pose_errors(cal.state.T_camera_base, T)
+    assert cal.state.stage == "refined" and rot < NOISY_ROT and trans < NOISY_TRANS
 
 
 def test_same_input_gives_identical_estimates():
