@@ -181,14 +181,19 @@ def _triangulate(uv: FloatArray, delta: FloatArray, a: FloatArray, p: FloatArray
     return X0
 
 
+def _reprojection(Rs: FloatArray, X0: FloatArray, p: FloatArray, uv: FloatArray, focal: float) -> FloatArray:
+    """Residuals (2 F,) px of points X0 (F, 3) or (3,) turned by Rs (F, 3, 3) about p, against uv (F, 2)."""
+    X = np.einsum("fij,fj->fi", Rs, np.broadcast_to(X0 - p, (Rs.shape[0], 3))) + p
+    z = np.where(np.abs(X[:, 2:3]) < 1e-6, 1e-6, X[:, 2:3])
+    return ((X[:, :2] / z - uv) * focal).ravel()
+
+
 def _track_rms(uv: FloatArray, delta: FloatArray, a: FloatArray, p: FloatArray, focal: float) -> float:
     """RMS residual, px, of one track's best point under a fixed rigid motion (a, p)."""
     Rs = Rotation.from_rotvec(delta[:, None] * a[None]).as_matrix()
 
     def residuals(X0: FloatArray) -> FloatArray:
-        X = np.einsum("fij,j->fi", Rs, X0 - p) + p
-        z = np.where(np.abs(X[:, 2:3]) < 1e-6, 1e-6, X[:, 2:3])
-        return ((X[:, :2] / z - uv) * focal).ravel()
+        return _reprojection(Rs, X0, p, uv, focal)
 
     result = least_squares(residuals, _triangulate(uv, delta, a, p), method="lm", max_nfev=50)
     return float(np.sqrt(2.0 * np.mean(result.fun ** 2)))
@@ -196,7 +201,10 @@ def _track_rms(uv: FloatArray, delta: FloatArray, a: FloatArray, p: FloatArray, 
 
 def _refine(uv: list[FloatArray], deltas: list[FloatArray], a0: FloatArray, p0: FloatArray,
             X0: FloatArray, focal: float, config: RigidAxisConfig):
-    """Robust least squares over (axis: 2, point angle: 1, X0: 3 per track); returns a, p, X0, residuals, cov."""
+    """Robust least squares over (axis: 2, point angle: 1, X0: 3 per track).
+
+    Returns a (3,), p (3,), X0 (T, 3), track RMS (T,) px and the axis 1-sigma, rad.
+    """
     u0, v0 = _basis(a0)
     theta0 = np.arctan2(p0 @ v0, p0 @ u0)
     n_obs = np.array([len(d) for d in deltas])
@@ -215,10 +223,7 @@ def _refine(uv: list[FloatArray], deltas: list[FloatArray], a0: FloatArray, p0: 
     def residuals(x):
         a, p, X = unpack(x)
         Rs = Rotation.from_rotvec(all_delta[:, None] * a[None]).as_matrix()
-        Xf = np.einsum("fij,fj->fi", Rs, X[track_of] - p) + p
-        z = Xf[:, 2:3]
-        z = np.where(np.abs(z) < 1e-6, 1e-6, z)
-        return ((Xf[:, :2] / z - all_uv) * focal).ravel()
+        return _reprojection(Rs, X[track_of], p, all_uv, focal)
 
     n = len(uv)
     row_track = np.repeat(track_of, 2)  # residual rows: (u, v) per observation
@@ -264,13 +269,12 @@ def _jacobian(residuals, x: FloatArray, row_track: NDArray[np.int64]) -> FloatAr
 
 def _axis_std(J, n_tracks: int, fun: FloatArray) -> float:
     """Largest 1-sigma of the two axis angles: Schur complement over the per-track points."""
-    Jd = J
-    G = Jd[:, :3]
+    G = J[:, :3]
     H_gg = G.T @ G
     S = H_gg.copy()
     for t in range(n_tracks):
         cols = slice(3 + 3 * t, 6 + 3 * t)
-        B = Jd[:, cols]
+        B = J[:, cols]
         rows = np.flatnonzero(np.any(B != 0, axis=1))
         Bt, Gt = B[rows], G[rows]
         H_pp = Bt.T @ Bt
