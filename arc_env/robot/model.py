@@ -21,6 +21,7 @@ import contextlib
 import importlib.util
 import os
 import warnings
+import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +41,16 @@ PANDA_HOME = (0.0, -0.5, 0.0, -2.0, 0.0, 1.5, 0.0)
 GROUND_GEOM = "arc_ground"
 #: Geom group of collision-only geometry (never drawn, by MuJoCo's convention for groups 3-5).
 COLLISION_GROUP = 3
+#: MuJoCo compiler settings a URDF gets when its own ``<mujoco><compiler>`` element does not set them
+#: (``urdf_spec``): keep every link as a body (the base body a result is expressed in must not be fused
+#: into the world), draw the <visual> meshes (what the robot looks like; the <collision> geometry is
+#: kept for the planners, ``RobotModel`` stops drawing it), keep the meshes' folders, and accept the
+#: inertias as written (only kinematics are used here, never dynamics).
+URDF_COMPILER = {"fusestatic": "false", "discardvisual": "false", "strippath": "false",
+                 "balanceinertia": "true"}
+#: Mesh files MuJoCo reads; a URDF whose <visual> meshes are of another kind (e.g. COLLADA .dae) keeps
+#: MuJoCo's default of discarding its visuals, and its collision geometry is drawn instead.
+MESH_SUFFIXES = (".stl", ".obj", ".msh")
 
 
 @dataclass(frozen=True)
@@ -90,8 +101,70 @@ def _panda_spec() -> mujoco.MjSpec:
     return spec
 
 
+def _urdf_mesh_file(urdf: Path, filename: str) -> Path:
+    """Where a URDF's mesh ``filename`` is.
+
+    ``package://NAME/rest`` is looked up in the URDF's folder and its ancestors (a folder named NAME, or
+    holding one); ``file://`` URIs and relative names start from the URDF's folder.
+    """
+    if filename.startswith("file://"):
+        filename = filename[len("file://"):]
+    if not filename.startswith("package://"):
+        return Path(filename) if Path(filename).is_absolute() else urdf.parent / filename
+    package, _, rest = filename[len("package://"):].partition("/")
+    for folder in urdf.resolve().parents:
+        for candidate in (folder, folder / package):
+            if candidate.name == package and candidate.is_dir():
+                return candidate / rest
+    raise InvalidInputError(f"robot file {urdf}: no folder {package!r} beside it or above it for {filename}")
+
+
+def urdf_spec(path: Path) -> mujoco.MjSpec:
+    """A URDF file as a MuJoCo spec, made loadable in memory (the file is never changed).
+
+    Mesh file names become absolute paths (``package://`` URIs resolved as ``_urdf_mesh_file`` says),
+    since MuJoCo's URDF importer knows no packages and by default strips folders from file names; the
+    compiler settings of ``URDF_COMPILER`` are added where the file's own ``<mujoco><compiler>`` element
+    does not give them (visuals stay discarded when a visual mesh is not in ``MESH_SUFFIXES``).
+
+    Raises:
+        InvalidInputError: the file is not XML, a package folder is missing, or MuJoCo refuses it.
+    """
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError) as exc:
+        raise InvalidInputError(f"robot file {path} could not be read: {exc}") from exc
+    extension = root.find("mujoco")
+    if extension is None:
+        extension = ET.SubElement(root, "mujoco")
+    compiler = extension.find("compiler")
+    if compiler is None:
+        compiler = ET.SubElement(extension, "compiler")
+    own_paths = any(k in compiler.attrib for k in ("meshdir", "assetdir", "strippath"))
+    if not own_paths:  # the file does not say where its meshes are: find them as ROS tools do
+        for mesh in root.iter("mesh"):
+            if mesh.get("filename"):
+                mesh.set("filename", str(_urdf_mesh_file(path, mesh.get("filename", "")).resolve()))
+    visual_meshes = [m.get("filename", "") for v in root.iter("visual") for m in v.iter("mesh")]
+    defaults = dict(URDF_COMPILER)
+    if any(not f.lower().endswith(MESH_SUFFIXES) for f in visual_meshes):
+        defaults["discardvisual"] = "true"
+    if own_paths:
+        del defaults["strippath"]
+    for key, value in defaults.items():
+        compiler.attrib.setdefault(key, value)
+    try:
+        spec = mujoco.MjSpec.from_string(ET.tostring(root, encoding="unicode"))
+    except Exception as exc:  # MuJoCo raises ValueError with the parser's message
+        raise InvalidInputError(f"robot file {path} could not be loaded: {exc}") from exc
+    spec.modelfiledir = str(path.parent.resolve())  # what the file's own relative paths start from
+    return spec
+
+
 def robot_spec(source: RobotSource) -> mujoco.MjSpec:
-    """The robot's model as a MuJoCo spec (file paths of meshes made absolute for the default Panda).
+    """The robot's model as a MuJoCo spec (mesh paths made absolute for the default Panda and URDFs).
+
+    An MJCF file is read as it is; a URDF (``.urdf``) through ``urdf_spec``.
 
     Raises:
         InvalidInputError: the file is missing or does not load (the message names it).
@@ -101,6 +174,8 @@ def robot_spec(source: RobotSource) -> mujoco.MjSpec:
     path = Path(source.path)
     if not path.is_file():
         raise InvalidInputError(f"robot file {path} does not exist")
+    if path.suffix.lower() == ".urdf":
+        return urdf_spec(path)
     try:
         return mujoco.MjSpec.from_file(str(path))
     except Exception as exc:  # MuJoCo raises ValueError with the parser's message
@@ -440,7 +515,9 @@ class RobotModel:
 __all__ = [
     "COLLISION_GROUP",
     "GROUND_GEOM",
+    "MESH_SUFFIXES",
     "PANDA_HOME",
+    "URDF_COMPILER",
     "RobotModel",
     "RobotSource",
     "attach_robot",
@@ -450,4 +527,5 @@ __all__ = [
     "quiet_attach",
     "robot_spec",
     "subtree",
+    "urdf_spec",
 ]

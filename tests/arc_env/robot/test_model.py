@@ -1,6 +1,7 @@
 """The robot model on its own: the same kinematics as the simulator's scene, no floor, quiet to build."""
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -50,3 +51,34 @@ def test_bad_sources_are_refused_with_the_valid_names():
         RobotModel.load(RobotSource(joints=("nope",), home=()))
     with pytest.raises(InvalidInputError, match="does not exist"):
         RobotModel.load(RobotSource(path="/no/such/robot.urdf", base_body="base"))
+
+
+def _write_obj(path: Path) -> None:
+    """A closed tetrahedron, 5 cm, as a Wavefront OBJ."""
+    v = ["v 0 0 0", "v 0.05 0 0", "v 0 0.05 0", "v 0 0 0.05"]
+    path.write_text("\n".join([*v, "f 1 3 2", "f 1 2 4", "f 1 4 3", "f 2 3 4"]) + "\n")
+
+
+def test_a_urdf_with_package_meshes_in_folders_loads_with_its_visuals(tmp_path):
+    package = tmp_path / "demo_description"
+    (package / "meshes" / "visual").mkdir(parents=True)
+    _write_obj(package / "meshes" / "visual" / "link.obj")
+    (tmp_path / "urdf").mkdir()
+    urdf = tmp_path / "urdf" / "demo.urdf"
+    mesh = '<geometry><mesh filename="package://demo_description/meshes/visual/link.obj"/></geometry>'
+    urdf.write_text(f"""<robot name="demo">
+  <material name="orange"><color rgba="1 0.4 0 1"/></material>
+  <link name="base"><visual>{mesh}<material name="orange"/></visual><collision>{mesh}</collision></link>
+  <link name="link1"><inertial><mass value="1"/><inertia ixx="1" iyy="1" izz="3" ixy="0" ixz="0" iyz="0"/></inertial>
+    <visual>{mesh}<material name="orange"/></visual><collision>{mesh}</collision></link>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="link1"/><origin xyz="0 0 0.1"/>
+    <axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+</robot>""")
+    robot = RobotModel.load(RobotSource(path=str(urdf), base_body="base", home=()))
+    assert robot.joint_names == ["j1"]
+    drawn = robot.rendered_geoms()
+    assert len(drawn) == 2  # the two visuals; the collision meshes are moved out of sight
+    np.testing.assert_allclose(robot.model.geom_rgba[drawn], [[1, 0.4, 0, 1]] * 2)
+    urdf.write_text(urdf.read_text().replace("demo_description", "missing_description"))
+    with pytest.raises(InvalidInputError, match="no folder 'missing_description'"):
+        RobotModel.load(RobotSource(path=str(urdf), base_body="base", home=()))
