@@ -16,6 +16,10 @@ speckle falls below a pixel and too few corners survive to calibrate in 10 motio
 realistic robot surface; ``--appearance`` picks the surface (``arc_env.sim.imaging``).
 ``--store DIR`` keeps every finished episode (``arc_env.bench.episodes``) and reuses it, so a long run can be
 interrupted and resumed; ``--workers N`` runs N episodes at once (one renderer thread each).
+``--robots panda,iiwa,xarm6`` runs the benchmark on each named robot of ``arc_env.robot.library`` in turn
+(the camera poses scaled to each arm, ``arc_env.bench.poses.benchmark_view``) and prints the summary per
+robot; the ``--json`` document then has one level more, {"robots": {"panda": {...figures above...},
+"iiwa": {...}}}. Without ``--robots`` the default Panda runs and the document is as above.
 """
 
 from __future__ import annotations
@@ -33,7 +37,9 @@ from arc_env.bench.episodes import (
     run_from_arguments,
     write_figures,
 )
+from arc_env.robot.library import DEFAULT_ROBOT, ROBOT_NAMES, parse_robot_names
 from arc_env.sim.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M
+from solver.errors import InvalidInputError
 
 CHECKPOINTS = (3, 10, 25)
 TARGET_25 = (0.001, 0.0015)  # rad, m: issue 3's target for tracked runs at 25 motions
@@ -78,33 +84,56 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--height", type=int, default=1080)
     parser.add_argument("--no-oracle", action="store_true", help="skip the oracle runs")
     parser.add_argument("--quick", action="store_true", help="2 poses x 1 seed, 960x540, 10 motions (CI smoke)")
+    parser.add_argument("--robots", help=f"comma-separated robots of the library, run in turn "
+                        f"({', '.join(ROBOT_NAMES)}; default: the Panda alone, --json without a per-robot level)")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
     if args.quick:
         args.poses, args.seeds, args.motions, args.width, args.height = 2, 1, 10, 960, 540
+    try:
+        robots = parse_robot_names(args.robots) if args.robots is not None else (DEFAULT_ROBOT,)
+    except InvalidInputError as exc:
+        parser.error(str(exc))
     checkpoints = [k for k in CHECKPOINTS if k <= args.motions]
     modes = ["tracked"] + ([] if args.no_oracle else ["oracle"])
-    specs = {(mode, pose, seed): EpisodeSpec("random", pose, seed, args.motions, args.width, args.height,
-                                             realism=args.realism, appearance=args.appearance,
-                                             oracle=mode == "oracle")
-             for pose in range(args.poses) for seed in range(args.seeds) for mode in modes}
-    print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, {args.width}x{args.height}")
-    print(f"{'mode':>8} {'pose':>4} {'seed':>4} " + " ".join(f"{'@' + str(k):>19}" for k in checkpoints)
+    specs = {(robot, mode, pose, seed): EpisodeSpec("random", pose, seed, args.motions, args.width, args.height,
+                                                    realism=args.realism, appearance=args.appearance,
+                                                    oracle=mode == "oracle", robot=robot)
+             for robot in robots for pose in range(args.poses) for seed in range(args.seeds) for mode in modes}
+    print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, {args.width}x{args.height}"
+          + (f", robots {', '.join(robots)}" if args.robots is not None else ""))
+    print(("robot    " if args.robots is not None else "")
+          + f"{'mode':>8} {'pose':>4} {'seed':>4} " + " ".join(f"{'@' + str(k):>19}" for k in checkpoints)
           + f" {'conv':>5} {'sec':>6} {'render':>7} {'track':>6} {'solve':>6}  commit")
 
     def show(r: dict, from_store: bool) -> None:
         curve = padded_curve(r, args.motions)
         errs = " ".join(f"{curve[k - 1][0]:>9.2e} {curve[k - 1][1] * 1e3:>6.2f}mm" for k in checkpoints)
         spec, sec = r["spec"], r["seconds"]
-        print(f"{'oracle' if spec['oracle'] else 'tracked':>8} {spec['pose']:>4} {spec['seed']:>4} {errs} "
+        robot = f"{spec.get('robot', DEFAULT_ROBOT):<8} " if args.robots is not None else ""
+        print(f"{robot}{'oracle' if spec['oracle'] else 'tracked':>8} {spec['pose']:>4} {spec['seed']:>4} {errs} "
               f"{str(r['converged_at'] or '-'):>5} {sec['total']:>6.1f} {sec['render']:>7.1f} {sec['tracking']:>6.1f} "
               f"{sec['solver']:>6.1f}  {r['commit']}{' (stored)' * from_store}{'  ' + r['note'] if r['note'] else ''}",
               flush=True)
 
     records = run_from_arguments(specs.values(), args, show)
-    results = {mode: [records[specs[mode, p, s]] for p in range(args.poses) for s in range(args.seeds)]
-               for mode in modes}
+    print()
+    print(f"code: {commits_used(records.values())}")
+    figures = {}
+    for robot in robots:
+        results = {mode: [records[specs[robot, mode, p, s]] for p in range(args.poses) for s in range(args.seeds)]
+                   for mode in modes}
+        if args.robots is not None:
+            print(f"-- {robot}")
+        figures[robot] = robot_figures(results, checkpoints, args)
+    if args.json:
+        write_figures(args.json, figures[DEFAULT_ROBOT] if args.robots is None else {"robots": figures})
+    return 0
+
+
+def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], args: argparse.Namespace) -> dict:
+    """One robot's figures (the --json document's keys) from its runs per mode; prints the summary."""
     tracked = results["tracked"]
     conv = [r["converged_at"] if r["converged_at"] is not None else np.inf for r in tracked]
     frames = sum(r["frames"] for r in tracked)
@@ -116,9 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         r["seconds"]["tracking"] + r["seconds"]["solver"] for r in tracked) / max(frames, 1)
     out["planning_seconds_per_call_median"] = _median([t for r in tracked for t in r["planning"]])
     out.update(tracking_figures(tracked))
-    print()
-    print(f"code: {commits_used(records.values())}")
-    for mode in modes:
+    for mode in results:
         for k in checkpoints:
             e = out[mode][str(k)]
             print(f"{mode:>8} @{k:<3} median rotation {e['rot_median_rad']:.2e} rad, "
@@ -136,9 +163,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{out['axes_per_run_median']:.1f}; usable result at the end: {out['usable_runs']} of "
               f"{out['runs_with_track_counts']} runs ({args.realism} camera, "
               f"{args.appearance or ('realistic' if args.realism == 'realistic' else 'painted')} robot)")
-    if args.json:
-        write_figures(args.json, out)
-    return 0
+    return out
 
 
 if __name__ == "__main__":

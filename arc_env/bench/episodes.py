@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from arc_env.robot.exports import write_files_atomic
+from arc_env.robot.library import DEFAULT_ROBOT, ROBOT_NAMES, library_robot
 from arc_env.robot.session import UsableCriteria, state_unusable_reason
 from arc_env.sim.imaging import APPEARANCES, REALISMS, realism_settings
 from solver.errors import ArcCalibError, InvalidInputError
@@ -68,6 +69,9 @@ class EpisodeSpec:
         oracle: projected mesh points instead of rendering and tracking (ARC-Calib methods only).
         realism: "clean" (today's renders) or "realistic" camera and robot (``arc_env.sim.imaging``).
         appearance: the robot's surface; None: the realism's default ("painted" clean, "realistic" realistic).
+        robot: the robot, a name of ``arc_env.robot.library.ROBOT_NAMES``; the cameras are the benchmark
+            poses scaled to it (``arc_env.bench.poses.benchmark_view``). Part of ``key`` only when not
+            the default Panda, so stores written before this field existed stay valid.
     """
 
     method: str
@@ -79,6 +83,7 @@ class EpisodeSpec:
     oracle: bool = False
     realism: str = "clean"
     appearance: str | None = None
+    robot: str = DEFAULT_ROBOT
 
     def __post_init__(self) -> None:
         """Check the fields."""
@@ -87,16 +92,22 @@ class EpisodeSpec:
             raise InvalidInputError(f"unknown method {self.method!r}; valid: {', '.join(METHODS)}")
         if self.oracle and self.method == "marker":
             raise InvalidInputError("the marker baseline has no oracle mode")
+        if self.robot not in ROBOT_NAMES:
+            raise InvalidInputError(f"unknown robot {self.robot!r}; valid: {', '.join(ROBOT_NAMES)}")
+        if self.method == "marker" and self.robot != DEFAULT_ROBOT:
+            raise InvalidInputError(f"the marker baseline's board mounts on the Panda's flange, not on {self.robot!r}")
         if self.pose < 0 or self.seed < 0 or self.motions < 1 or self.width < 1 or self.height < 1:
             raise InvalidInputError(f"invalid episode {self}")
 
     @property
     def key(self) -> str:
-        """File-name-safe identity, e.g. ``random_1920x1080_m25_p3_s1``."""
+        """File-name-safe identity, e.g. ``random_1920x1080_m25_p3_s1`` (``random_iiwa_1920x1080_...`` on the iiwa)."""
         mode = "-oracle" if self.oracle else ""
+        robot = "" if self.robot == DEFAULT_ROBOT else f"_{self.robot}"
         default_look = (self.realism, self.appearance) == ("clean", None)
         look = "" if default_look else f"_{self.realism}-{self.appearance or 'default'}"
-        return f"{self.method}{mode}{look}_{self.width}x{self.height}_m{self.motions}_p{self.pose}_s{self.seed}"
+        return (f"{self.method}{mode}{robot}{look}_{self.width}x{self.height}_m{self.motions}_p{self.pose}"
+                f"_s{self.seed}")
 
     @property
     def rng_seed(self) -> int:
@@ -126,18 +137,19 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
 
 
 def _make_env(spec: EpisodeSpec, board: bool = False):  # noqa: ANN202  (ArcCalibEnv; imported lazily)
-    from arc_env.bench.poses import benchmark_camera_pose
+    from arc_env.bench.poses import benchmark_camera_pose, benchmark_view
     from arc_env.sim.env import ArcCalibEnv, EnvConfig
     from arc_env.sim.marker_board import MarkerBoard
     from arc_env.sim.scene import SceneConfig
 
-    config = EnvConfig(scene=SceneConfig(width=spec.width, height=spec.height,
+    config = EnvConfig(scene=SceneConfig(robot=library_robot(spec.robot), width=spec.width, height=spec.height,
                                          marker_board=MarkerBoard() if board else None,
                                          **realism_settings(spec.realism, spec.appearance)),
                        max_motions=spec.motions, oracle_keypoints=spec.oracle, terminate_on_convergence=False)
     env = ArcCalibEnv(config)
+    target, scale = benchmark_view(env.scene.robot)
     obs, _ = env.reset(seed=spec.rng_seed,
-                       options={"camera_pose": benchmark_camera_pose(spec.pose, config.camera_target)})
+                       options={"camera_pose": benchmark_camera_pose(spec.pose, target, scale)})
     return env, obs
 
 
@@ -255,7 +267,7 @@ class EpisodeStore:
             return None
         if not isinstance(record, dict) or not isinstance(record.get("spec"), dict):
             return None
-        defaults = {"realism": "clean", "appearance": None}  # records stored before these fields existed
+        defaults = {"realism": "clean", "appearance": None, "robot": DEFAULT_ROBOT}  # stored before these fields
         return record if {**defaults, **record["spec"]} == asdict(spec) else None
 
     def put(self, record: dict[str, Any]) -> None:

@@ -23,6 +23,20 @@ def test_spec_checks_and_key():
         EpisodeSpec("random", 0, 0, motions=0)
 
 
+def test_the_robot_is_in_the_key_only_when_not_the_panda(tmp_path):
+    assert EpisodeSpec("random", 1, 0, 3, 480, 270, oracle=True, robot="panda").key == SPEC.key
+    iiwa = EpisodeSpec("random", 1, 0, 3, 480, 270, oracle=True, robot="iiwa")
+    assert iiwa.key == "random-oracle_iiwa_480x270_m3_p1_s0"
+    with pytest.raises(InvalidInputError, match="unknown robot 'ur5'; valid: panda, iiwa, xarm6"):
+        EpisodeSpec("random", 0, 0, robot="ur5")
+    with pytest.raises(InvalidInputError, match="mounts on the Panda"):
+        EpisodeSpec("marker", 0, 0, robot="xarm6")
+    store = EpisodeStore(tmp_path)  # a record stored before the field existed is still the Panda's
+    old = {k: v for k, v in vars(SPEC).items() if k != "robot"}
+    store.path(SPEC).write_text(json.dumps({"spec": old, "curve": []}))
+    assert store.get(SPEC) is not None and store.get(iiwa) is None
+
+
 def test_padded_curve_holds_the_last_estimate():
     record = {"curve": [None, [0.1, 0.02], [0.05, 0.01]]}
     assert padded_curve(record, 5) == [(np.inf, np.inf), (0.1, 0.02), (0.05, 0.01), (0.05, 0.01), (0.05, 0.01)]
