@@ -29,7 +29,8 @@ def _add_look_arguments(parser: argparse.ArgumentParser) -> None:
                              "blur, +-5%% auto-exposure gain, H.264 video, shadows, the realistic appearance")
     parser.add_argument("--appearance", choices=APPEARANCES,
                         help="the robot's surface: painted (uniform speckle; the clean default), as_shipped (the "
-                             "model's own materials), realistic (plus sparse screws and seams; the realistic default)")
+                             "model's own materials), realistic (plus sparse screws, seams, labels and cables; "
+                             "the realistic default)")
 
 
 def main(argv: list[str] | None = None) -> int:
