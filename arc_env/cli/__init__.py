@@ -29,7 +29,8 @@ def _add_look_arguments(parser: argparse.ArgumentParser) -> None:
                              "blur, +-5%% auto-exposure gain, H.264 video, shadows, the realistic appearance")
     parser.add_argument("--appearance", choices=APPEARANCES,
                         help="the robot's surface: painted (uniform speckle; the clean default), as_shipped (the "
-                             "model's own materials), realistic (plus sparse screws and seams; the realistic default)")
+                             "model's own materials), realistic (plus sparse screws, seams, labels and cables; "
+                             "the realistic default)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -72,6 +73,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="frame rate, Hz; joints turn at 1 rad/s (default 30)")
     record.add_argument("--robot", help="robot MJCF or URDF file (default: the gymnasium-robotics Panda)")
     record.add_argument("--base-body", help="the robot's base body (required with --robot)")
+    record.add_argument("--joint-latency-ms", type=float, default=0.0, metavar="MS",
+                        help="stamp the joint log this late relative to the camera (negative: early), as a rig "
+                             "whose joint_states clock disagrees with the camera's; default 0")
     _add_look_arguments(record)
     calibrate = sub.add_parser("calibrate", help="calibrate from a recording; write the result and ROS exports")
     from arc_env.cli.calibrate import add_arguments

@@ -23,12 +23,14 @@ def run_record(args: argparse.Namespace) -> int:
     dist = tuple(parse_dist(args.dist)) if args.dist else ()
     settings = RecordSettings(out=Path(args.out), motions=args.motions, seed=args.seed, width=args.width,
                               height=args.height, fx=args.fx, dist=dist, video=args.video, fps=args.fps,
-                              robot=robot, realism=args.realism, appearance=args.appearance)
+                              robot=robot, realism=args.realism, appearance=args.appearance,
+                              joint_latency_s=args.joint_latency_ms / 1000.0)
     started = time.perf_counter()
     with Progress(settings.motions, "motions recorded") as bar:
         truth = record_episode(settings, on_motion=bar.step)
     print(f"wrote {settings.out} ({settings.motions} motions, {settings.width}x{settings.height}, "
-          f"{'MP4' if settings.video else 'PNG'}{', distorted' if dist else ''}) in "
+          f"{'MP4' if settings.video else 'PNG'}{', distorted' if dist else ''}"
+          f"{f', joint log {args.joint_latency_ms:+g} ms' if args.joint_latency_ms else ''}) in "
           f"{time.perf_counter() - started:.1f} s")
     print(f"ground truth (not part of the recording): {ground_truth_path(settings.out)}")
     np.set_printoptions(precision=5, suppress=True)

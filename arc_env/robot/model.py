@@ -340,13 +340,14 @@ class RobotModel:
     def _separate_visual_geoms(self) -> None:
         """Make what the robot file meant to be seen the drawn geometry.
 
-        When the robot has visual-only geoms (contype = conaffinity = 0), its collision geoms are
-        moved to ``COLLISION_GROUP`` so they are not drawn over them (URDF imports put collision geoms
-        in group 0); otherwise its collision geoms are what is drawn.
+        When the robot has visual-only geoms (contype = conaffinity = 0) in a drawn group (0-2), its
+        collision geoms are moved to ``COLLISION_GROUP`` so they are not drawn over them (URDF imports
+        put collision geoms in group 0); otherwise its collision geoms are what is drawn. Visual-only
+        geoms in hidden groups (3-5, e.g. a simulator's decorations) do not count.
         """
         m = self.model
         robot = np.isin(m.geom_bodyid, self.robot_bodies)
-        visual = robot & (m.geom_contype == 0) & (m.geom_conaffinity == 0)
+        visual = robot & (m.geom_contype == 0) & (m.geom_conaffinity == 0) & (m.geom_group <= 2)
         if visual.any():
             m.geom_group[robot & ~visual & (m.geom_group <= 2)] = COLLISION_GROUP
 

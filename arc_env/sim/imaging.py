@@ -5,9 +5,13 @@ Appearance (``SceneConfig.appearance``):
 * ``painted``: every drawn geom of the robot wears a uniform random speckle (today's default, and far
   richer in corners than any real arm);
 * ``as_shipped``: the model's own materials, nothing added -- smoother than any real arm: the hard floor;
-* ``realistic``: as shipped plus sparse marks real castings carry: screw heads and specks on some links,
-  panel seams (lines around the link) on others, chosen per geom from a seeded generator. Labels and
-  cables are not modelled yet. Nothing downstream knows where any mark is.
+* ``realistic``: as shipped plus what real arms carry (``arc_env.sim.marks``), all from a generator seeded
+  by ``SceneConfig.appearance_seed``: screw heads and specks on some geoms, panel seams (lines around
+  the link) on others, each in the geom's own colour; a printed label (a few cm: light ground, dark text
+  lines, a logo) on about 40 % of the links and a dark cable 5-10 mm thick along about 60 % of them
+  (of those long enough), placed on the link's surface by ray casting and fixed to it. Labels and cables
+  are visual-only geoms: no mass, no collision, not in the oracle's surface points. Nothing downstream
+  knows where any mark is.
 
 Camera effects (``CameraEffects``, applied by ``arc_env.sim.scene.Scene.render_sweep``), each imitating a
 real colour camera at 30 Hz (figures of a RealSense D415 / typical USB3 industrial camera indoors):

@@ -8,6 +8,14 @@ nothing reading the recording can see it.
 
 A camera with distortion (``--dist``) is simulated by rendering a pinhole camera with a wider view and
 resampling every frame through the distortion (``arc_env.sim.distortion.Distorter``).
+
+A joint log whose clock disagrees with the camera's (``--joint-latency-ms``, ``RecordSettings.joint_latency_s``):
+a real rig pairs each frame with the joint reading stamped at the frame's time, and when the joint states
+are stamped late by L seconds, that reading is where the joint was L seconds before the frame was exposed.
+The frames are rendered at the true positions; the swept joint's logged position is the true one minus
+L times its velocity (the sweep's per-frame step times the frame rate, at most ``EnvConfig.joint_speed``),
+the same shift at every frame (the sweep is modelled at constant speed from its first frame to its last).
+L < 0 is a log that leads the camera. The other joints stand still, so their readings are unaffected.
 """
 
 from __future__ import annotations
@@ -27,15 +35,24 @@ from arc_env.sim.env import ArcCalibEnv, EnvConfig
 from arc_env.sim.imaging import realism_settings
 from arc_env.sim.scene import SceneConfig
 from planners.random_planner import RandomPlanner
+from solver.arrays import FloatArray
 from solver.errors import ArcCalibError, InvalidInputError
 from solver.frames import quaternion_xyzw_from_matrix
 from solver.observations import CameraIntrinsics
+
+#: Largest joint-log latency ``record`` simulates, s (real rigs are off by milliseconds to a few hundred).
+MAX_JOINT_LATENCY_S = 1.0
 
 
 def ground_truth_path(recording: Path) -> Path:
     """Where ``record`` puts the ground truth of a recording: ``<recording>.ground_truth.json`` beside it."""
     recording = Path(recording)
     return recording.with_name(recording.name + ".ground_truth.json")
+
+
+def joint_velocity(deltas: FloatArray, fps: float) -> float:
+    """The sweeping joint's velocity, rad/s: deltas (F,) rad of its frames at ``fps`` Hz, evenly spaced."""
+    return float(deltas[1] - deltas[0]) * fps if len(deltas) > 1 else 0.0
 
 
 @dataclass(frozen=True)
@@ -55,6 +72,8 @@ class RecordSettings:
         robot: the robot.
         realism: "clean" or "realistic" camera (``arc_env.sim.imaging.realism_settings``).
         appearance: the robot's surface (None: the realism's default).
+        joint_latency_s: how late the joint log is stamped relative to the camera, s (< 0: early); the
+            logged positions of the sweeping joint lag the frames by this times its velocity. 0: exact.
     """
 
     out: Path
@@ -69,6 +88,12 @@ class RecordSettings:
     robot: RobotSource = RobotSource()
     realism: str = "clean"
     appearance: str | None = None
+    joint_latency_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.joint_latency_s) or abs(self.joint_latency_s) > MAX_JOINT_LATENCY_S:
+            raise InvalidInputError(f"the joint latency must be within +-{MAX_JOINT_LATENCY_S * 1e3:.0f} ms, "
+                                    f"got {self.joint_latency_s * 1e3} ms")
 
 
 def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | None = None) -> dict:
@@ -114,6 +139,8 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
                 frames = [distorter(image) for image in frames]
             positions = np.tile(q, (len(deltas), 1))
             positions[:, joint] += deltas
+            if s.joint_latency_s:
+                positions[:, joint] -= s.joint_latency_s * joint_velocity(deltas, env.config.fps)
             writer.add_motion(names, positions, frames)
             if on_motion is not None:
                 on_motion(f"joint {names[joint]}, delta {delta:+.2f} rad, {len(deltas)} frames")
@@ -127,6 +154,7 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
             "seed": s.seed,
             "motions": s.motions,
             "robot": s.robot.path or "gymnasium-robotics Franka Panda",
+            "joint_latency_s": s.joint_latency_s,
         }
         writer.close()
         writer = None

@@ -9,10 +9,12 @@ Surface texture (``SceneConfig.appearance``, ``arc_env.sim.imaging``). A flat-sh
 while real arms have seams, screws, logos and scuffs. ``painted`` (the default) gives every rendered geom
 of the robot one material: a MuJoCo built-in cube texture with random dark marks on a light ground
 (``mark="random"``), mapped from each geom's local coordinates, i.e. a uniform speckle "paint" -- richer
-than any real arm. ``as_shipped`` keeps the model's own materials; ``realistic`` adds sparse screw heads or
-panel seams to some links. The marks are random texels, not fiducials; nothing downstream knows where they
-are or that they exist, and the solver only ever sees tracks. Camera effects (noise, motion blur, gain
-drift, lossy video) are applied to the frames of a sweep (``Scene.render_sweep``).
+than any real arm. ``as_shipped`` keeps the model's own materials; ``realistic`` keeps their colours and adds
+what real arms carry (``arc_env.sim.marks``): sparse screw heads or panel seams on some links, a few printed
+labels and a cable along some links (visual-only geoms fixed to the links). The marks are random, not
+fiducials; nothing downstream knows where they are or that they exist, and the solver only ever sees tracks.
+Camera effects (noise, motion blur, gain drift, lossy video) are applied to the frames of a sweep
+(``Scene.render_sweep``).
 
 The robot itself (joints, limits, kinematics, surface points) is an ``arc_env.robot.model.RobotModel``
 around the scene's compiled model, ``Scene.robot``; it shares the scene's state, so posing the arm poses
@@ -35,6 +37,7 @@ from arc_env.robot.model import RobotModel, RobotSource, attach_robot, compile_s
 from arc_env.sim.camera import fovy_from_intrinsics, mujoco_camera_from_optical
 from arc_env.sim.imaging import APPEARANCES, CameraEffects
 from arc_env.sim.marker_board import MarkerBoard, add_marker_board, restore_board_material
+from arc_env.sim.marks import MARK_GROUP, SCREWS, SEAMS, Marks, add_marks, dress, plan_marks
 from arc_env.sim.rendering import create_renderer
 from solver.arrays import FloatArray, ImageArray, MaskArray
 from solver.errors import InvalidInputError
@@ -46,8 +49,6 @@ CAMERA_NAME = "arc_camera"
 #: Name of the body carrying the camera housing and tripod (collision geometry for the planners).
 MOUNT_BODY = "arc_camera_mount"
 _SPECKLE = "arc_speckle"
-_SEAMS = "arc_seams"
-_SCREWS = "arc_screws"
 
 
 @dataclass(frozen=True)
@@ -87,8 +88,9 @@ class SceneConfig:
             (tests/arc_env/test_round_trip.py): aliased frames 9.7 mrad / 8.6 mm, with the 0.7 px
             blur 5.0 mrad / 3.7 mm, with 4x MSAA and no blur 3.0 mrad / 3.3 mm; costs 3.6 ms at 1080p.
         appearance: the robot's surface: "painted" (uniform speckle), "as_shipped" (the model's own
-            materials) or "realistic" (as shipped plus sparse screws and seams); see ``arc_env.sim.imaging``.
-        appearance_seed: which links get which marks under "realistic".
+            materials) or "realistic" (as shipped plus sparse screws, seams, labels and cables); see
+            ``arc_env.sim.imaging`` and ``arc_env.sim.marks``.
+        appearance_seed: which links get which marks, and where, under "realistic".
         speckle_texels: texels per cube face of the speckle texture (fewer: larger marks).
         speckle_density: fraction of texels that are dark marks.
         effects: what the camera adds to the frames of a sweep (noise, motion blur, gain drift, video).
@@ -158,12 +160,12 @@ def _world_xml(config: SceneConfig) -> str:
     <texture name="{_SPECKLE}" type="cube" builtin="flat" mark="random" random="{c.speckle_density}"
       rgb1=".88 .88 .85" markrgb=".08 .08 .08" width="{c.speckle_texels}" height="{c.speckle_texels}"/>
     <material name="{_SPECKLE}" texture="{_SPECKLE}" specular=".2" shininess=".2"/>
-    <texture name="{_SEAMS}" type="cube" builtin="flat" mark="edge" rgb1=".9 .9 .88" markrgb=".3 .3 .3"
+    <texture name="{SEAMS}" type="cube" builtin="flat" mark="edge" rgb1=".9 .9 .88" markrgb=".3 .3 .3"
       width="64" height="64"/>
-    <material name="{_SEAMS}" texture="{_SEAMS}" specular=".3" shininess=".3"/>
-    <texture name="{_SCREWS}" type="cube" builtin="flat" mark="random" random="0.003" rgb1=".9 .9 .88"
+    <material name="{SEAMS}" texture="{SEAMS}" specular=".3" shininess=".3"/>
+    <texture name="{SCREWS}" type="cube" builtin="flat" mark="random" random="0.003" rgb1=".9 .9 .88"
       markrgb=".12 .12 .12" width="128" height="128"/>
-    <material name="{_SCREWS}" texture="{_SCREWS}" specular=".3" shininess=".3"/>
+    <material name="{SCREWS}" texture="{SCREWS}" specular=".3" shininess=".3"/>
   </asset>
   <worldbody>
     <light name="arc_key" pos="1.5 1.0 3.0" dir="-0.5 -0.3 -1" directional="true" diffuse=".55 .55 .55"
@@ -182,10 +184,12 @@ class Scene:
 
     Attributes:
         config: how it was built.
-        model: the compiled scene (robot, floor, camera mount, obstacles, lights).
+        model: the compiled scene (robot, floor, camera mount, obstacles, lights; under the realistic
+            appearance also the labels and cables, ``marks``).
         data: its state; ``robot`` poses the arm in it.
         robot: the robot in this scene (kinematics, limits, surface points), sharing ``data``.
         T_camera_base: (4, 4) the true camera pose (``set_camera``): simulation only.
+        marks: what the realistic appearance added (None under the other appearances): simulation only.
 
     Args:
         config: how to build it.
@@ -200,11 +204,21 @@ class Scene:
         self.config = config or SceneConfig()
         source = self.config.robot
         robot = robot_spec(source)
+        for geom in robot.geoms:  # hidden either way; MARK_GROUP, which the scene draws, is for the marks
+            if geom.group == MARK_GROUP:
+                geom.group = MARK_GROUP - 1
         spec = mujoco.MjSpec.from_string(_world_xml(self.config))
         attach_robot(spec, robot, source)
         if self.config.marker_board is not None:
             add_marker_board(spec, self.config.marker_board)
         self.model = compile_spec(spec, source)
+        self.marks: Marks | None = None
+        if self.config.appearance == "realistic":  # placed on the compiled robot, then compiled in
+            unmarked = self.model
+            self.marks = plan_marks(RobotModel(unmarked, source), self.config.appearance_seed)
+            add_marks(spec, unmarked, self.marks)
+            self.model = compile_spec(spec, source)
+            dress(self.model, unmarked, self.marks)
         m = self.model
         self.data = mujoco.MjData(m)
         self.robot = RobotModel(m, source, self.data)
@@ -216,23 +230,18 @@ class Scene:
         self.T_camera_base = np.eye(4)
         self._renderers: dict[int, mujoco.Renderer] = {}  # by downscale factor
         self._scene_option = mujoco.MjvOption()
-        for g in range(3, 6):  # collision geoms live in group 3 by convention
-            self._scene_option.geomgroup[g] = 0
+        for g in range(3, 6):  # collision geoms live in group 3 by convention; the marks in MARK_GROUP
+            self._scene_option.geomgroup[g] = int(g == MARK_GROUP)
         self.robot.set_q(self.robot.home)
 
     def _set_up_robot_geoms(self) -> None:
-        """Dress the robot's drawn geoms (``RobotModel.rendered_geoms``) for ``config.appearance``."""
-        m, appearance = self.model, self.config.appearance
-        geoms = self.robot.rendered_geoms()
-        material = {name: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_MATERIAL, name)
-                    for name in (_SPECKLE, _SEAMS, _SCREWS)}
-        if appearance == "painted":
-            m.geom_matid[geoms] = material[_SPECKLE]
-        elif appearance == "realistic":  # a third of the links plain, a third with seams, a third with screws
-            choice = np.random.default_rng(self.config.appearance_seed).integers(0, 3, len(geoms))
-            for g, c in zip(geoms, choice, strict=True):
-                if c:
-                    m.geom_matid[g] = material[_SEAMS if c == 1 else _SCREWS]
+        """Paint the robot's drawn geoms (``RobotModel.rendered_geoms``) under the painted appearance.
+
+        (The realistic appearance's seams and screws are put on by ``arc_env.sim.marks.dress``.)
+        """
+        m = self.model
+        if self.config.appearance == "painted":
+            m.geom_matid[self.robot.rendered_geoms()] = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_MATERIAL, _SPECKLE)
 
     # -- camera --------------------------------------------------------------------------------
     @functools.cached_property

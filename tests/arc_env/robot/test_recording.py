@@ -94,6 +94,38 @@ def test_record_refuses_an_existing_output(tiny, capsys):
     assert "already exists" in capsys.readouterr().err
 
 
+def test_joint_latency_shifts_the_logged_sweep_by_latency_times_speed(tiny, tmp_path, capsys):
+    rec, truth = tiny
+    latency_s = 0.04
+    out = tmp_path / "late"
+    args = ["record", "--out", str(out), "--motions", "2", "--width", str(TINY["width"]),
+            "--height", str(TINY["height"]), "--fps", str(TINY["fps"]), "--seed", str(TINY["seed"]),
+            "--joint-latency-ms", str(latency_s * 1e3)]
+    assert main(args) == 0
+    assert "joint log +40 ms" in capsys.readouterr().out
+    assert truth["joint_latency_s"] == 0.0
+    late_truth = json.loads(ground_truth_path(out).read_text())
+    assert late_truth["joint_latency_s"] == latency_s and late_truth["T_camera_base"] == truth["T_camera_base"]
+    exact, late = read_recording(rec).motions[:2], read_recording(out, min_motions=1).motions
+    assert len(late) == 2
+    for a, b in zip(exact, late, strict=True):
+        assert a.joint == b.joint and a.n_frames == b.n_frames
+        for k in range(a.n_frames):  # the same frames: the camera is not affected
+            frame = Path("frames") / f"{k:06d}.png"
+            assert (a.path / frame).read_bytes() == (b.path / frame).read_bytes()
+        rows_a = np.array(read_joints_csv(a.path / "joints.csv")[1])
+        rows_b = np.array(read_joints_csv(b.path / "joints.csv")[1])
+        column = 1 + a.joint
+        still = np.ones(rows_a.shape[1], bool)
+        still[column] = False
+        np.testing.assert_array_equal(rows_a[:, still], rows_b[:, still])
+        velocity = (rows_a[1, column] - rows_a[0, column]) * TINY["fps"]  # rad/s of the sweep's frames
+        assert 0 < abs(velocity) <= 1.0 + 1e-9  # EnvConfig.joint_speed
+        np.testing.assert_allclose(rows_a[:, column] - rows_b[:, column], latency_s * velocity, atol=1e-12)
+    with pytest.raises(InvalidInputError, match="joint latency"):
+        RecordSettings(out=tmp_path / "never", joint_latency_s=2.0)
+
+
 # -- distortion ----------------------------------------------------------------------------------------
 def test_distorter_maps_each_pixel_to_its_pinhole_ray():
     target = CameraIntrinsics(K=np.array([[300.0, 0, 161.0], [0, 300.0, 88.0], [0, 0, 1]]),
