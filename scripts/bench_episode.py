@@ -3,13 +3,9 @@
 10 camera poses x 5 seeds (fixed; ``--poses N --seeds M`` run a subset), random collision-free
 motions, 1920x1080. Every run is done twice: tracked (rendering + optical flow) and with
 ``oracle_keypoints`` (projected mesh points, 0.5 px noise), the floor that separates tracking
-error from geometry error. Prints a table and, with ``--json PATH``, writes
-{"tracked": {"3": {"rot_median_rad", "trans_median_m"}, "10": ..., "25": ...}, "oracle": {...},
- "motions_to_converge_median", "seconds_per_episode_median",
- "seconds_split": {"render", "tracking", "solver"}, "tracks_per_motion_median",
- "full_tracks_per_motion_median", "axes_per_run_median", "usable_runs", "runs_with_track_counts"}
-(``seconds_split``: median seconds per tracked episode of each part). A run without an estimate at
-a checkpoint counts as an infinite error in the medians (printed as inf, written as null).
+error from geometry error. Prints a line per run, a summary per robot, size and look, and a markdown
+table of them side by side; with ``--json PATH`` it writes the figures (keys below). A run without an
+estimate at a checkpoint counts as an infinite error in the medians (printed as inf, written as null).
 ``--quick``: 2 poses x 1 seed at 960x540, 10 motions, for a CI smoke run (at 640x360 the
 speckle falls below a pixel and too few corners survive to calibrate in 10 motions).
 ``--realism realistic`` renders with a real camera's noise, motion blur, gain drift and H.264 video and a
@@ -17,9 +13,41 @@ realistic robot surface; ``--appearance`` picks the surface (``arc_env.sim.imagi
 ``--store DIR`` keeps every finished episode (``arc_env.bench.episodes``) and reuses it, so a long run can be
 interrupted and resumed; ``--workers N`` runs N episodes at once (one renderer thread each).
 ``--robots panda,iiwa,xarm6`` runs the benchmark on each named robot of ``arc_env.robot.library`` in turn
-(the camera poses scaled to each arm, ``arc_env.bench.poses.benchmark_view``) and prints the summary per
-robot; the ``--json`` document then has one level more, {"robots": {"panda": {...figures above...},
-"iiwa": {...}}}. Without ``--robots`` the default Panda runs and the document is as above.
+(the camera poses scaled to each arm, ``arc_env.bench.poses.benchmark_view``); ``--sizes
+1920x1080,1280x720`` at each image size (default: ``--width`` x ``--height``); ``--beside-clean`` runs the
+same poses and seeds again with ``--realism clean`` and the painted robot (today's setting; tracked runs
+only) and prints the two looks side by side.
+
+The realism issue's (issue 19) measurement, 10 poses x 3 seeds at 1080p and 720p::
+
+    MUJOCO_GL=egl python scripts/bench_episode.py --realism realistic --robots panda,iiwa,xarm6 \
+        --seeds 3 --sizes 1920x1080,1280x720 --no-oracle --beside-clean --store DIR --json out.json
+
+For realistic runs the summary checks that issue's targets (PASS / FAIL / n/a): a usable result on every
+run at the end (25 motions); the median error at 25 motions <= 1e-3 rad and 1.5 mm from 1080 px high
+images, <= 2e-3 rad and 3 mm from 720 px (n/a below 720 px or with fewer motions); an estimate after
+motion 5 on >= 90 % of runs; no run that declared convergence while its true error was over 3 times its
+reported 1-sigma (``arc_env.bench.episodes.falsely_converged``).
+
+``--json`` figures of one robot, size and look (medians over the tracked runs unless named otherwise):
+{"tracked": {"3": {"rot_median_rad", "trans_median_m"}, "10": ..., "25": ...}, "oracle": {...} (when run),
+ "motions_to_converge_median", "seconds_per_episode_median", "seconds_split": {"render", "tracking",
+ "solver"}, "tracking_plus_solver_ms_per_frame", "planning_seconds_per_call_median",
+ "tracks_per_motion_median", "full_tracks_per_motion_median", "axes_per_run_median", "usable_runs",
+ "runs_with_track_counts", "usable_fraction",
+ "axes_conics_per_run_median", "axes_rigid_per_run_median", "runs_with_front_ends",
+ "pose_by_5_fraction", "false_convergence_runs", "runs_with_convergence_check",
+ "realism", "appearance", "targets" (realistic runs only): {"usable_every_run", "median_at_25",
+ "median_target_25": [rad, m] or null, "pose_by_5", "no_false_convergence"} (true, false, or null: n/a)}.
+``seconds_split``: median seconds per tracked episode of each part. ``usable_runs`` counts the runs
+whose final estimate is usable among ``runs_with_track_counts``; ``usable_fraction`` is their ratio.
+``pose_by_5_fraction``: runs with an estimate after motion 5 (null with fewer motions).
+``false_convergence_runs``: runs with at least one falsely converged motion. Records stored before a
+figure existed are left out of it; ``runs_with_track_counts``, ``runs_with_front_ends`` and
+``runs_with_convergence_check`` count the runs that have it. Without ``--robots``, ``--sizes`` and
+``--beside-clean`` the document is these figures (the Panda, one size, one look); with any of them it is
+nested {"robots": {"panda": {"1920x1080": {"realistic": {...figures...}, "clean": {...}}, ...}, ...}}:
+per robot, per size ("WxH"), per look (the ``--realism`` name, and "clean" with ``--beside-clean``).
 """
 
 from __future__ import annotations
@@ -44,6 +72,14 @@ from solver.errors import InvalidInputError
 CHECKPOINTS = (3, 10, 25)
 TARGET_25 = (0.001, 0.0015)  # rad, m: issue 3's target for tracked runs at 25 motions
 PAPER_25 = (PAPER_ROTATION_RAD, PAPER_TRANSLATION_M)  # rad, m: the paper's simulation result
+#: Issue 19's median error targets at 25 motions for realistic runs, by the smallest image height (px)
+#: they apply from: (rad, m). Smaller images have none.
+REALISTIC_TARGETS_25 = ((1080, (1e-3, 1.5e-3)), (720, (2e-3, 3e-3)))
+#: Issue 19: a pose (linear or refined) after this many motions on at least this fraction of runs.
+POSE_BY = 5
+POSE_BY_FRACTION = 0.9
+#: The look --beside-clean adds: today's clean camera and painted robot.
+CLEAN = ("clean", None)
 
 
 def _median(values: list[float]) -> float:
@@ -52,6 +88,17 @@ def _median(values: list[float]) -> float:
 
 def _finite_or_none(x: float) -> float | None:
     return x if np.isfinite(x) else None
+
+
+def parse_sizes(text: str) -> list[tuple[int, int]]:
+    """``"1920x1080,1280x720"`` -> [(1920, 1080), (1280, 720)] (width, height px; repeats dropped)."""
+    sizes = []
+    for part in text.split(","):
+        w, sep, h = part.strip().lower().partition("x")
+        if not sep or not w.isdigit() or not h.isdigit() or int(w) < 1 or int(h) < 1:
+            raise InvalidInputError(f"sizes are WxH[,WxH...] such as 1920x1080,1280x720; got {part.strip()!r}")
+        sizes.append((int(w), int(h)))
+    return list(dict.fromkeys(sizes))
 
 
 def summarize(runs: list[dict], checkpoints: list[int], n_motions: int) -> dict:
@@ -68,10 +115,70 @@ def tracking_figures(runs: list[dict]) -> dict:
     Records stored before these fields existed are left out (``runs_with_track_counts`` counts the rest).
     """
     counted = [r for r in runs if "tracks" in r and "usable" in r]
+    usable = sum(bool(r["usable"]) for r in counted)
     return {"tracks_per_motion_median": _median([n for r in counted for n in r["tracks"]]),
             "full_tracks_per_motion_median": _median([n for r in counted for n in r["full_tracks"]]),
             "axes_per_run_median": _median([r["axes"] for r in counted]),
-            "usable_runs": sum(bool(r["usable"]) for r in counted), "runs_with_track_counts": len(counted)}
+            "usable_runs": usable, "runs_with_track_counts": len(counted),
+            "usable_fraction": usable / len(counted) if counted else None}
+
+
+def front_end_figures(runs: list[dict]) -> dict:
+    """Medians over runs of the motions with an axis from the conics and from the rigid front end.
+
+    Records stored before ``axes_conics`` existed are left out (``runs_with_front_ends`` counts the rest).
+    """
+    counted = [r for r in runs if "axes_conics" in r and "axes_rigid" in r]
+    return {"axes_conics_per_run_median": _median([r["axes_conics"] for r in counted]),
+            "axes_rigid_per_run_median": _median([r["axes_rigid"] for r in counted]),
+            "runs_with_front_ends": len(counted)}
+
+
+def pose_by_fraction(runs: list[dict], k: int, n_motions: int) -> float | None:
+    """Fraction of runs with an estimate after motion k (a run that stopped earlier keeps its last state).
+
+    None without runs or when the episodes have fewer than k motions.
+    """
+    if not runs or k > n_motions:
+        return None
+    return sum(bool(np.isfinite(padded_curve(r, k)[k - 1][0])) for r in runs) / len(runs)
+
+
+def convergence_figures(runs: list[dict]) -> dict:
+    """Runs that declared convergence at least once while their true error was over 3x their 1-sigma.
+
+    Records stored before ``false_convergence`` existed are left out (``runs_with_convergence_check``).
+    """
+    counted = [r for r in runs if "false_convergence" in r]
+    return {"false_convergence_runs": sum(r["false_convergence"] > 0 for r in counted),
+            "runs_with_convergence_check": len(counted)}
+
+
+def median_target(height: int) -> tuple[float, float] | None:
+    """Issue 19's median error target at 25 motions (rad, m) for realistic images ``height`` px high."""
+    for min_height, target in REALISTIC_TARGETS_25:
+        if height >= min_height:
+            return target
+    return None
+
+
+def realistic_targets(figures: dict, height: int) -> dict:
+    """Issue 19's targets for one robot, size and realistic look: True (met), False, or None (n/a)."""
+    target = median_target(height)
+    at_25 = figures["tracked"].get("25")
+    median_met = None
+    if target is not None and at_25 is not None:
+        median_met = bool(at_25["rot_median_rad"] <= target[0] and at_25["trans_median_m"] <= target[1])
+    n_usable, n_checked = figures["runs_with_track_counts"], figures["runs_with_convergence_check"]
+    pose = figures["pose_by_5_fraction"]
+    return {"usable_every_run": figures["usable_runs"] == n_usable if n_usable else None,
+            "median_at_25": median_met, "median_target_25": None if target is None else list(target),
+            "pose_by_5": None if pose is None else pose >= POSE_BY_FRACTION,
+            "no_false_convergence": figures["false_convergence_runs"] == 0 if n_checked else None}
+
+
+def _size_label(size: tuple[int, int]) -> str:
+    return f"{size[0]}x{size[1]}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -82,10 +189,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--motions", type=int, default=25, help="motions per episode (default 25)")
     parser.add_argument("--width", type=int, default=1920)
     parser.add_argument("--height", type=int, default=1080)
+    parser.add_argument("--sizes", help="comma-separated image sizes WxH run in turn, e.g. 1920x1080,1280x720 "
+                        "(default: --width x --height)")
     parser.add_argument("--no-oracle", action="store_true", help="skip the oracle runs")
     parser.add_argument("--quick", action="store_true", help="2 poses x 1 seed, 960x540, 10 motions (CI smoke)")
     parser.add_argument("--robots", help=f"comma-separated robots of the library, run in turn "
-                        f"({', '.join(ROBOT_NAMES)}; default: the Panda alone, --json without a per-robot level)")
+                        f"({', '.join(ROBOT_NAMES)}; default: the Panda alone)")
+    parser.add_argument("--beside-clean", action="store_true",
+                        help="also run the same poses and seeds clean with the painted robot (tracked only) and "
+                        "print both side by side")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
@@ -93,17 +205,24 @@ def main(argv: list[str] | None = None) -> int:
         args.poses, args.seeds, args.motions, args.width, args.height = 2, 1, 10, 960, 540
     try:
         robots = parse_robot_names(args.robots) if args.robots is not None else (DEFAULT_ROBOT,)
+        sizes = parse_sizes(args.sizes) if args.sizes is not None else [(args.width, args.height)]
     except InvalidInputError as exc:
         parser.error(str(exc))
+    if args.beside_clean and args.realism == "clean":
+        parser.error("--beside-clean adds clean painted runs beside --realism realistic; --realism is already clean")
+    nested = args.robots is not None or args.sizes is not None or args.beside_clean
     checkpoints = [k for k in CHECKPOINTS if k <= args.motions]
-    modes = ["tracked"] + ([] if args.no_oracle else ["oracle"])
-    specs = {(robot, mode, pose, seed): EpisodeSpec("random", pose, seed, args.motions, args.width, args.height,
-                                                    realism=args.realism, appearance=args.appearance,
-                                                    oracle=mode == "oracle", robot=robot)
-             for robot in robots for pose in range(args.poses) for seed in range(args.seeds) for mode in modes}
-    print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, {args.width}x{args.height}"
+    looks = [(args.realism, args.appearance)] + ([CLEAN] if args.beside_clean else [])
+    modes = {look: ["tracked"] + ([] if args.no_oracle or i > 0 else ["oracle"]) for i, look in enumerate(looks)}
+    specs = {(robot, size, look, mode, pose, seed): EpisodeSpec(
+                 "random", pose, seed, args.motions, size[0], size[1], realism=look[0], appearance=look[1],
+                 oracle=mode == "oracle", robot=robot)
+             for robot in robots for size in sizes for look in looks
+             for pose in range(args.poses) for seed in range(args.seeds) for mode in modes[look]}
+    print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, "
+          f"{', '.join(_size_label(z) for z in sizes)}, {' and '.join(look[0] for look in looks)}"
           + (f", robots {', '.join(robots)}" if args.robots is not None else ""))
-    print(("robot    " if args.robots is not None else "")
+    print(("robot    size      look      " if nested else "")
           + f"{'mode':>8} {'pose':>4} {'seed':>4} " + " ".join(f"{'@' + str(k):>19}" for k in checkpoints)
           + f" {'conv':>5} {'sec':>6} {'render':>7} {'track':>6} {'solve':>6}  commit")
 
@@ -111,8 +230,9 @@ def main(argv: list[str] | None = None) -> int:
         curve = padded_curve(r, args.motions)
         errs = " ".join(f"{curve[k - 1][0]:>9.2e} {curve[k - 1][1] * 1e3:>6.2f}mm" for k in checkpoints)
         spec, sec = r["spec"], r["seconds"]
-        robot = f"{spec.get('robot', DEFAULT_ROBOT):<8} " if args.robots is not None else ""
-        print(f"{robot}{'oracle' if spec['oracle'] else 'tracked':>8} {spec['pose']:>4} {spec['seed']:>4} {errs} "
+        where = (f"{spec.get('robot', DEFAULT_ROBOT):<8} {_size_label((spec['width'], spec['height'])):<9} "
+                 f"{spec.get('realism', 'clean'):<9} " if nested else "")
+        print(f"{where}{'oracle' if spec['oracle'] else 'tracked':>8} {spec['pose']:>4} {spec['seed']:>4} {errs} "
               f"{str(r['converged_at'] or '-'):>5} {sec['total']:>6.1f} {sec['render']:>7.1f} {sec['tracking']:>6.1f} "
               f"{sec['solver']:>6.1f}  {r['commit']}{' (stored)' * from_store}{'  ' + r['note'] if r['note'] else ''}",
               flush=True)
@@ -120,24 +240,34 @@ def main(argv: list[str] | None = None) -> int:
     records = run_from_arguments(specs.values(), args, show)
     print()
     print(f"code: {commits_used(records.values())}")
-    figures = {}
+    figures: dict[str, dict[str, dict[str, dict]]] = {}
     for robot in robots:
-        results = {mode: [records[specs[robot, mode, p, s]] for p in range(args.poses) for s in range(args.seeds)]
-                   for mode in modes}
-        if args.robots is not None:
-            print(f"-- {robot}")
-        figures[robot] = robot_figures(results, checkpoints, args)
+        for size in sizes:
+            for look in looks:
+                results = {mode: [records[specs[robot, size, look, mode, p, s]]
+                                  for p in range(args.poses) for s in range(args.seeds)] for mode in modes[look]}
+                if nested:
+                    print(f"-- {robot} {_size_label(size)} {look[0]}")
+                group = robot_figures(results, checkpoints, args.motions, look, size)
+                figures.setdefault(robot, {}).setdefault(_size_label(size), {})[look[0]] = group
+    print()
+    print(side_by_side_table(figures, [look[0] for look in looks]))
     if args.json:
-        write_figures(args.json, figures[DEFAULT_ROBOT] if args.robots is None else {"robots": figures})
+        if nested:
+            write_figures(args.json, {"robots": figures})
+        else:
+            write_figures(args.json, figures[DEFAULT_ROBOT][_size_label(sizes[0])][args.realism])
     return 0
 
 
-def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], args: argparse.Namespace) -> dict:
-    """One robot's figures (the --json document's keys) from its runs per mode; prints the summary."""
+def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], n_motions: int,
+                  look: tuple[str, str | None], size: tuple[int, int]) -> dict:
+    """One robot's figures at one size and look (the --json document's keys) from its runs per mode; prints them."""
     tracked = results["tracked"]
     conv = [r["converged_at"] if r["converged_at"] is not None else np.inf for r in tracked]
     frames = sum(r["frames"] for r in tracked)
-    out = {mode: summarize(runs, checkpoints, args.motions) for mode, runs in results.items()}
+    realism, appearance = look[0], look[1] or ("realistic" if look[0] == "realistic" else "painted")
+    out = {mode: summarize(runs, checkpoints, n_motions) for mode, runs in results.items()}
     out["motions_to_converge_median"] = _finite_or_none(_median(conv))
     out["seconds_per_episode_median"] = _median([r["seconds"]["total"] for r in tracked])
     out["seconds_split"] = {k: _median([r["seconds"][k] for r in tracked]) for k in ("render", "tracking", "solver")}
@@ -145,6 +275,12 @@ def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], args: 
         r["seconds"]["tracking"] + r["seconds"]["solver"] for r in tracked) / max(frames, 1)
     out["planning_seconds_per_call_median"] = _median([t for r in tracked for t in r["planning"]])
     out.update(tracking_figures(tracked))
+    out.update(front_end_figures(tracked))
+    out["pose_by_5_fraction"] = pose_by_fraction(tracked, POSE_BY, n_motions)
+    out.update(convergence_figures(tracked))
+    out["realism"], out["appearance"] = realism, appearance
+    if realism == "realistic":
+        out["targets"] = realistic_targets(out, size[1])
     for mode in results:
         for k in checkpoints:
             e = out[mode][str(k)]
@@ -161,9 +297,90 @@ def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], args: 
         print(f"tracks per motion (median): {out['tracks_per_motion_median']:.0f}, spanning the sweep "
               f"{out['full_tracks_per_motion_median']:.0f}; motions with an axis from stage one per run (median): "
               f"{out['axes_per_run_median']:.1f}; usable result at the end: {out['usable_runs']} of "
-              f"{out['runs_with_track_counts']} runs ({args.realism} camera, "
-              f"{args.appearance or ('realistic' if args.realism == 'realistic' else 'painted')} robot)")
+              f"{out['runs_with_track_counts']} runs ({realism} camera, {appearance} robot)")
+    _print_missing(out, len(tracked))
+    if out["runs_with_front_ends"]:
+        print(f"motions with an axis per run (median): conics {out['axes_conics_per_run_median']:.1f}, "
+              f"rigid {out['axes_rigid_per_run_median']:.1f}")
+    if out["pose_by_5_fraction"] is not None:
+        print(f"runs with a pose after motion {POSE_BY}: {out['pose_by_5_fraction']:.0%}")
+    if out["runs_with_convergence_check"]:
+        print(f"runs that declared convergence with a true error over 3x their 1-sigma: "
+              f"{out['false_convergence_runs']} of {out['runs_with_convergence_check']}")
+    if "targets" in out:
+        print(targets_line(out, n_motions))
     return out
+
+
+def _print_missing(out: dict, n_runs: int) -> None:
+    """Say how many stored records predate a figure (they are left out of it)."""
+    for key, what in (("runs_with_track_counts", "track counts and usability"),
+                      ("runs_with_front_ends", "axes per front end"),
+                      ("runs_with_convergence_check", "the convergence check")):
+        if out[key] < n_runs:
+            print(f"{n_runs - out[key]} of {n_runs} stored runs predate {what}: left out of it")
+
+
+def _verdict(met: bool | None) -> str:
+    return "n/a" if met is None else ("PASS" if met else "FAIL")
+
+
+def targets_line(out: dict, n_motions: int) -> str:
+    """The issue 19 targets of one realistic group, each with PASS / FAIL / n/a and the measured figure."""
+    t = out["targets"]
+    at_25 = out["tracked"].get("25")
+    median = ("" if at_25 is None else
+              f" ({at_25['rot_median_rad']:.2e} rad, {at_25['trans_median_m'] * 1e3:.2f} mm)")
+    target = ("median @25 (no target at this size)" if t["median_target_25"] is None else
+              f"median @25 <= {t['median_target_25'][0]:.0e} rad / {t['median_target_25'][1] * 1e3:g} mm")
+    pose = out["pose_by_5_fraction"]
+    return (f"targets: usable on every run by {n_motions} motions {_verdict(t['usable_every_run'])} "
+            f"({out['usable_runs']} of {out['runs_with_track_counts']}); "
+            f"{target} {_verdict(t['median_at_25'])}{median}; "
+            f"pose by {POSE_BY} motions on >= {POSE_BY_FRACTION:.0%} of runs {_verdict(t['pose_by_5'])}"
+            f"{'' if pose is None else f' ({pose:.0%})'}; "
+            f"no false convergence {_verdict(t['no_false_convergence'])} "
+            f"({out['false_convergence_runs']} of {out['runs_with_convergence_check']} runs)")
+
+
+def _cell(value: float | None, fmt: str) -> str:
+    return "-" if value is None or np.isnan(value) else ("inf" if np.isinf(value) else format(value, fmt))
+
+
+def side_by_side_table(figures: dict[str, dict[str, dict[str, dict]]], looks: list[str]) -> str:
+    """A markdown table: a row per robot and size, each cell the figure of every look ("realistic / clean").
+
+    Args:
+        figures: {robot: {"WxH": {look: figures of ``robot_figures``}}}.
+        looks: the looks in the order the cells give them.
+    """
+    def error(group: dict, k: int, part: str, scale: float) -> str:
+        e = group["tracked"].get(str(k))
+        return "-" if e is None else _cell(e[part] * scale, ".2f")
+
+    def fraction(n: int, of: int) -> str:
+        return f"{n}/{of}" if of else "-"
+
+    columns = {
+        "tracks per motion": lambda g: _cell(g["tracks_per_motion_median"], ".0f"),
+        "spanning the sweep": lambda g: _cell(g["full_tracks_per_motion_median"], ".0f"),
+        "axes: conics": lambda g: _cell(g["axes_conics_per_run_median"], ".1f"),
+        "axes: rigid": lambda g: _cell(g["axes_rigid_per_run_median"], ".1f"),
+        "@10 mrad": lambda g: error(g, 10, "rot_median_rad", 1e3),
+        "@10 mm": lambda g: error(g, 10, "trans_median_m", 1e3),
+        "@25 mrad": lambda g: error(g, 25, "rot_median_rad", 1e3),
+        "@25 mm": lambda g: error(g, 25, "trans_median_m", 1e3),
+        "usable": lambda g: fraction(g["usable_runs"], g["runs_with_track_counts"]),
+        f"pose by {POSE_BY}": lambda g: "-" if g["pose_by_5_fraction"] is None else f"{g['pose_by_5_fraction']:.0%}",
+        "false conv.": lambda g: fraction(g["false_convergence_runs"], g["runs_with_convergence_check"]),
+    }
+    lines = [f"Cells: {' / '.join(looks)} (medians over runs; errors of the tracked runs)", "",
+             "| robot | size | " + " | ".join(columns) + " |", "|---|---|" + "---|" * len(columns)]
+    for robot, by_size in figures.items():
+        for size, by_look in by_size.items():
+            cells = [" / ".join(fmt(by_look[look]) for look in looks) for fmt in columns.values()]
+            lines.append(f"| {robot} | {size} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,17 @@ A record (``dict``):
 * ``T_camera_base``: the final estimate (4x4 nested lists) or ``null``; ``note``: why it stopped early;
 * ``tracks``, ``full_tracks``: per executed motion, the tracks handed to the solver and those spanning the
   sweep; ``axes``: executed motions to which stage one gave an axis (at the end); ``usable``: whether
-  the final estimate passes ``calibrate``'s usability check (``arc_env.robot.session.UsableCriteria``).
+  the final estimate passes ``calibrate``'s usability check (``arc_env.robot.session.UsableCriteria``);
+* ``axes_conics``, ``axes_rigid``: executed motions to which each front end gave an axis (at the end,
+  :func:`front_end_axes`; a motion rejected as "nothing moved" has neither, and one may have both);
+* ``std_curve``: per executed motion ``[max rotation 1-sigma rad, max translation 1-sigma m]`` of the
+  calibration state after it (the largest of the three entries of ``CalibrationState.std``), ``null``
+  while the state has no 1-sigma;
+* ``false_convergence``: executed motions after which the state said it had converged while its true
+  error was over 3 times its reported 1-sigma (:func:`falsely_converged`: rotation error > 3 x the norm
+  of the three rotation 1-sigmas, or translation error > 3 x the norm of the three translation ones).
+
+Records stored before a field existed lack it; the study scripts leave such records out of that figure.
 """
 
 from __future__ import annotations
@@ -47,12 +57,16 @@ from arc_env.robot.exports import write_files_atomic
 from arc_env.robot.library import DEFAULT_ROBOT, ROBOT_NAMES, library_robot
 from arc_env.robot.session import UsableCriteria, state_unusable_reason
 from arc_env.sim.imaging import APPEARANCES, REALISMS, realism_settings
+from solver.arrays import FloatArray
 from solver.errors import ArcCalibError, InvalidInputError
+from solver.pipeline import CalibrationState, MotionReport
 
 #: Selection methods an episode can use: ARC-Calib with either planner, or the marker baseline.
 METHODS = ("random", "informed", "marker")
 #: Re-check resolution for executed sweeps and transits, m (finer than the env's own check).
 RECHECK_STEP_M = 0.002
+#: A converged state is false when its true error exceeds this many times its reported 1-sigma norm.
+FALSE_CONVERGENCE_SIGMAS = 3.0
 
 
 @dataclass(frozen=True)
@@ -129,6 +143,49 @@ def _error_pair(rot: float | None, trans: float | None) -> list[float] | None:
     return None if rot is None or trans is None else [float(rot), float(trans)]
 
 
+def front_end_axes(reports: Iterable[MotionReport]) -> tuple[int, int]:
+    """Motions to which the conic and the rigid front end gave an axis: (conics, rigid).
+
+    The conics gave one when the motion reached the front ends (``front_end`` is set: a motion
+    rejected as "nothing moved" never does, and its empty ``conics`` says nothing) and ``conics``
+    holds no reason; the rigid front end when ``front_end == "rigid"`` (its axis is then the one used).
+    """
+    conics = rigid = 0
+    for r in reports:
+        conics += r.front_end != "" and r.conics == ""
+        rigid += r.front_end == "rigid"
+    return conics, rigid
+
+
+def std_maxima(std: FloatArray | None) -> list[float] | None:
+    """``[max rotation 1-sigma rad, max translation 1-sigma m]`` of a state's std (6,), or None without one."""
+    if std is None:
+        return None
+    return [float(np.max(std[:3])), float(np.max(std[3:]))]
+
+
+def falsely_converged(state: CalibrationState, rot_error: float | None, trans_error: float | None) -> bool:
+    """Whether ``state`` says it converged while its true error is beyond its reported uncertainty.
+
+    True when ``state.converged`` and the true rotation error exceeds ``FALSE_CONVERGENCE_SIGMAS`` times
+    the norm of the three rotation 1-sigmas (``std[:3]``, rad), or the translation error that many times
+    the norm of the translation ones (``std[3:]``, m). Both are in the parameterization of
+    ``solver.frames.pose_difference`` (the norm of the 1-sigmas is the RMS length of an error drawn
+    from the covariance's diagonal). A converged state without a 1-sigma (the linear method alone) or
+    without an estimate cannot be checked and counts as not false.
+
+    Args:
+        state: the calibration after a motion.
+        rot_error: rad, true rotation error of ``state.T_camera_base`` (None without an estimate).
+        trans_error: m, true translation error (None without an estimate).
+    """
+    if not state.converged or state.std is None or rot_error is None or trans_error is None:
+        return False
+    std = np.asarray(state.std, dtype=np.float64)
+    k = FALSE_CONVERGENCE_SIGMAS
+    return bool(rot_error > k * np.linalg.norm(std[:3]) or trans_error > k * np.linalg.norm(std[3:]))
+
+
 def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
     """Run one episode and return its record (see the module doc)."""
     if spec.method == "marker":
@@ -161,7 +218,8 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
     seconds = dict.fromkeys(("render", "tracking", "solver", "transit", "planning"), 0.0)
     record: dict[str, Any] = {"spec": asdict(spec), "commit": code_version(), "curve": [], "planning": [],
                               "frames": 0, "converged_at": None, "refused": 0, "in_collision": 0,
-                              "T_camera_base": None, "note": "", "tracks": [], "full_tracks": []}
+                              "T_camera_base": None, "note": "", "tracks": [], "full_tracks": [],
+                              "std_curve": [], "false_convergence": 0}
     env, obs = _make_env(spec)
     try:
         planner_cls = RandomPlanner if spec.method == "random" else InformedPlanner
@@ -195,6 +253,9 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
             record["curve"].append(_error_pair(info["rot_error_rad"], info["trans_error_m"]))
             record["tracks"].append(int(info["motion"]["n_tracks"]))
             record["full_tracks"].append(int(info["motion"]["n_full_tracks"]))
+            state = session.calibrator.state
+            record["std_curve"].append(std_maxima(state.std))
+            record["false_convergence"] += falsely_converged(state, info["rot_error_rad"], info["trans_error_m"])
             if obs["converged"] and record["converged_at"] is None:
                 record["converged_at"] = len(record["curve"])
             if info["T_camera_base"] is not None:
@@ -202,6 +263,7 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
         calibrator = env.session.calibrator
         assert calibrator is not None
         record["axes"] = sum(calibrator.motion_geometry(i) is not None for i in range(len(calibrator.reports)))
+        record["axes_conics"], record["axes_rigid"] = front_end_axes(calibrator.reports)
         record["usable"] = not state_unusable_reason(calibrator.state, calibrator.state.n_accepted, UsableCriteria())
     finally:
         env.close()
