@@ -94,8 +94,8 @@ class CalibratorConfig:
             two non-parallel axes fix the rotation and the translation up to a ray from the camera,
             along which the tracks of every motion, with an axis or not, can fix it). Not when the
             adjustment ran from the linear pose and its covariance was too wide: no start changes that.
-            On the 12-motion realistic 1080p Panda recordings measured (docs in the commit), the first
-            pose comes at motion 6 instead of 9 and at 3 instead of 12.
+            On two realistic 12-motion 1080p Panda recordings (0-2 axes by motion 5) the first pose
+            comes at motion 6 instead of 9 and at 3 instead of 12.
         family_distances: m; the family is sampled where the motions' joints lie between these
             distances from the camera (log-spaced)...
         family_samples: ... at this many distances (each can give two members, both in front).
