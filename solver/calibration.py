@@ -138,6 +138,35 @@ def pose_family(correspondences: Sequence[AxisCorrespondence]) -> tuple[FloatArr
     return R, t0, np.linalg.svd(K)[2][-1]
 
 
+def family_offsets(R: FloatArray, t0: FloatArray, u: FloatArray, points_base: FloatArray,
+                   distances: FloatArray) -> FloatArray:
+    """Members s of the pose family [R | t0 + s u] that put the robot in front of the camera at given distances.
+
+    For each distance d, the offsets s at which the centroid of ``points_base`` lies d from the
+    camera centre and in front of it (z > 0): the roots of |p0 + s u| = d with p0 = R c + t0 (none
+    when the line p0 + s u passes farther than d from the camera; both when both are in front).
+
+    Args:
+        R: (3, 3) rotation of the family (``pose_family``).
+        t0: (3,) m, its translation at s = 0.
+        u: (3,) unit direction of its free translation.
+        points_base: (N, 3) float64, m: points of the robot that the camera sees (e.g. the joint
+            points of the motions), base frame.
+        distances: (D,) float64, m: the distances to place their centroid at.
+
+    Returns:
+        (K,) float64, m: the offsets s, ascending (K <= 2 D).
+    """
+    p0 = R @ np.mean(np.asarray(points_base, dtype=np.float64), axis=0) + t0
+    b = float(p0 @ u)
+    offsets = []
+    for d in np.asarray(distances, dtype=np.float64):
+        disc = b * b - float(p0 @ p0) + d * d
+        if disc >= 0:
+            offsets += [s for s in (-b - np.sqrt(disc), -b + np.sqrt(disc)) if (p0 + s * u)[2] > 0]
+    return np.unique(offsets)
+
+
 def solve_linear(correspondences: Sequence[AxisCorrespondence],
                  depths: FloatArray | None = None) -> FloatArray:
     """T_camera_base (4, 4) by the paper's linear method.

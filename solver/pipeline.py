@@ -6,6 +6,10 @@ inconsistent with it (§V-C-2, ``solver.calibration``); the bundle adjustment ov
 tracks moved, starting from the previous refined pose or the linear one (``solver.refinement``);
 the convergence monitor over the refined estimates (§V-D). A motion that stage one found ambiguous
 still informs the bundle adjustment: the rigid-rotation model with a known pose has no ambiguity.
+Before the first refined pose, when there is no linear one to start from (fewer than three axes, no
+consensus) or the adjustment cannot run from it, it starts from the poses that two or more axes allow
+(``pose_family``: the rotation and the translation up to a ray from the camera), sampled along that ray
+and screened by short robust passes (ours: ``CalibratorConfig.family_start``).
 """
 
 from __future__ import annotations
@@ -19,7 +23,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from solver.arrays import FloatArray
-from solver.calibration import AxisCorrespondence, ConsensusResult, solve_consensus
+from solver.calibration import (
+    MIN_OBSERVABILITY,
+    AxisCorrespondence,
+    ConsensusResult,
+    family_offsets,
+    pose_family,
+    solve_consensus,
+)
 from solver.camera import normalized_from_pixels
 from solver.convergence import ConvergenceConfig, ConvergenceMonitor
 from solver.errors import (
@@ -29,13 +40,23 @@ from solver.errors import (
     InvalidInputError,
     UnobservablePoseError,
 )
+from solver.frames import pose_difference, transform_from_rt
 from solver.kinematics import AxisFunction
 from solver.motion import MotionConfig, MotionGeometry, estimate_motion_geometry, track_moved
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
-from solver.refinement import RefinementConfig, RefinementResult, TrackSet, build_track_set, refine
+from solver.refinement import (
+    RefinementConfig,
+    RefinementResult,
+    TrackSet,
+    build_track_set,
+    refine,
+    screen_start,
+    track_observability,
+)
 from solver.rigid_axis import RigidAxisConfig, geometry_from_rigid_fit, rigid_axis_of_motion
 
 Stage = Literal["none", "linear", "refined"]
+Start = Literal["", "previous", "linear", "family"]
 
 
 @dataclass(frozen=True)
@@ -67,6 +88,17 @@ class CalibratorConfig:
             monitor's thresholds.
         max_std_translation: m; the same for translation.
         seed: seed of every random choice (RANSAC, subsampling).
+        family_start: with the refinement on and no refined pose yet, when there is no linear pose
+            (fewer than three motions with an axis, or no consensus) or the bundle adjustment could
+            not run from it, start it from the poses that the motions' axes allow (``pose_family``:
+            two non-parallel axes fix the rotation and the translation up to a ray from the camera,
+            along which the tracks of every motion, with an axis or not, can fix it). Not when the
+            adjustment ran from the linear pose and its covariance was too wide: no start changes that.
+            On two realistic 12-motion 1080p Panda recordings (0-2 axes by motion 5) the first pose
+            comes at motion 6 instead of 9 and at 3 instead of 12.
+        family_distances: m; the family is sampled where the motions' joints lie between these
+            distances from the camera (log-spaced)...
+        family_samples: ... at this many distances (each can give two members, both in front).
     """
 
     motion: MotionConfig = field(default_factory=MotionConfig)
@@ -83,6 +115,15 @@ class CalibratorConfig:
     max_std_rotation: float = 0.05
     max_std_translation: float = 0.05
     seed: int = 0
+    family_start: bool = True
+    family_distances: tuple[float, float] = (0.3, 5.0)
+    family_samples: int = 12
+
+    def __post_init__(self) -> None:
+        lo, hi = self.family_distances
+        if not 0 < lo < hi or self.family_samples < 2:
+            raise InvalidInputError(f"need 0 < family_distances[0] < family_distances[1] and family_samples >= 2, "
+                                    f"got {self.family_distances}, {self.family_samples}")
 
 
 @dataclass
@@ -141,6 +182,9 @@ class CalibrationState:
         rms_px: RMS reprojection error of the refinement, px.
         message: why there is no estimate, or "".
         seconds: wall time of this update's stages, {"linear": s, "refined": s}.
+        start: where the bundle adjustment that gave the refined pose started: "previous" (the last
+            refined pose), "linear", "family" (a member of the motions' pose family:
+            ``CalibratorConfig.family_start``), or "" (no refined pose).
     """
 
     T_camera_base: FloatArray | None
@@ -155,6 +199,7 @@ class CalibrationState:
     rms_px: float | None
     message: str
     seconds: dict[str, float] = field(default_factory=dict)
+    start: Start = ""
 
 
 @dataclass
@@ -176,6 +221,33 @@ FOCAL_SCALE_TOLERANCE = 0.01
 #: fx and fy 2 % low / high fit best at 1.017 / 0.972 (RMS 1.2 % / 4 % lower), 5 % low / high at 1.040 /
 #: 0.960 (RMS 19 % / 20 % lower) -- while the poses were 15-39 mm off with 1-sigma of about 1 mm.
 FOCAL_RMS_GAIN = 0.005
+
+
+#: Short robust pass per member of the pose family (``Calibrator._family_start``): evaluations at most ...
+FAMILY_SCREEN_NFEV = 10
+#: ... over at most this many tracks per motion ...
+FAMILY_SCREEN_TRACKS = 12
+#: ... of at most this many frames each ...
+FAMILY_SCREEN_FRAMES = 10
+#: ... scored by residuals truncated at this many px (a track behind the camera costs it on every frame).
+FAMILY_CAP_PX = 3.0
+#: Other local minima along the family scoring within this fraction of the best are adjusted in full too ...
+FAMILY_RIVAL_RATIO = 0.25
+#: ... at most this many of them.
+FAMILY_MAX_RIVALS = 2
+#: Two adjusted members are the same pose when xi^T (C_1 + C_2)^-1 xi is below this (chi^2_6, 0.999) ...
+FAMILY_SAME_CHI2 = 22.46
+#: ... else the better-fitting one is kept only when the other's score is this fraction higher.
+FAMILY_MARGIN = 0.1
+
+
+def _fit_score(tracks: TrackSet, refined: RefinementResult, cap_px: float) -> float:
+    """How well a refinement fits all of ``tracks``, px^2 (comparable between refinements of the same tracks).
+
+    The mean squared residual per coordinate, every observation of a track it dropped counted as cap_px^2.
+    """
+    kept = refined.track_inliers[tracks.track]
+    return float((refined.rms_px**2 * kept.sum() + cap_px**2 * (~kept).sum()) / kept.size)
 
 
 @dataclass(frozen=True)
@@ -317,29 +389,32 @@ class Calibrator:
 
         t_linear = time.perf_counter()
         refined: RefinementResult | None = None
+        start_kind: Start = ""
         start = self._refined.T_camera_base if self._refined is not None else None
         if start is None and linear is not None:
             start = linear.T_camera_base
+        tracks: TrackSet | None = None
+        ran = False  # a bundle adjustment from the previous or linear pose converged (its covariance may be too wide)
         if cfg.refine and start is not None:
             tracks = self._track_set(live)
-            try:
-                refined = refine(tracks, start, cfg.refinement, points_init=self._warm_points(live))
-                with np.errstate(invalid="ignore"):  # a negative variance is caught just below
-                    std = np.sqrt(np.diag(refined.covariance))
-                if (not np.all(np.isfinite(std)) or np.any(std[:3] > cfg.max_std_rotation)
-                        or np.any(std[3:] > cfg.max_std_translation)):
-                    message = (f"the motions do not fix the pose: 1-sigma uncertainty "
-                               f"{np.round(std, 4).tolist()} (rad, m) is too large")
-                    refined = None
-            except (ArcCalibError, np.linalg.LinAlgError) as exc:
-                message = f"refinement failed: {exc}"
-                refined = None
-            if refined is not None:
-                inlier_tracks = np.bincount(tracks.motion[refined.track_inliers], minlength=len(live))
-                self._refined = refined
-                offsets = np.cumsum([0] + [len(self._motions[k].tracks) for k in live])
-                for slot, k in enumerate(live):
-                    self._motions[k].points = refined.points_base[offsets[slot]:offsets[slot + 1]]
+            refined, why, ran = self._refine_checked(tracks, start, self._warm_points(live))
+            start_kind = "previous" if self._refined is not None else "linear"
+            message = why or message
+        # The family when there is no pose to start from, or the adjustment could not run from the linear one
+        # (e.g. a wrong branch that puts the tracks behind the camera); not when it ran and the motions do not
+        # fix the pose: no other start changes that.
+        if cfg.refine and cfg.family_start and self._refined is None and not ran and live:
+            tracks = tracks if tracks is not None else self._track_set(live)
+            refined, why = self._family_start(live, with_axis, tracks)
+            start_kind = "family" if refined is not None else start_kind
+            if refined is None:
+                message = f"{message}; {why}" if message else why
+        if refined is not None:
+            inlier_tracks = np.bincount(tracks.motion[refined.track_inliers], minlength=len(live))
+            self._refined = refined
+            offsets = np.cumsum([0] + [len(self._motions[k].tracks) for k in live])
+            for slot, k in enumerate(live):
+                self._motions[k].points = refined.points_base[offsets[slot]:offsets[slot + 1]]
         t_refined = time.perf_counter()
         self._update_reports(live, with_axis, linear, refined,
                              inlier_tracks if refined is not None else None)
@@ -374,8 +449,107 @@ class Calibrator:
             rms_px=refined.rms_px if refined is not None else None,
             message="" if T is not None else message,
             seconds={"linear": t_linear - t_start, "refined": t_refined - t_linear},
+            start=start_kind if refined is not None else "",
         )
         return self.state
+
+    def _refine_checked(self, tracks: TrackSet, start: FloatArray, points_init: FloatArray | None
+                        ) -> tuple[RefinementResult | None, str, bool]:
+        """The bundle adjustment from ``start``.
+
+        Returns:
+            (the result, "", True) if the motions fix its pose (1-sigma within max_std_*); else (None, why,
+            whether the adjustment ran: False when it failed before giving a pose and covariance).
+        """
+        cfg = self.config
+        try:
+            refined = refine(tracks, start, cfg.refinement, points_init=points_init)
+        except (ArcCalibError, np.linalg.LinAlgError) as exc:
+            return None, f"refinement failed: {exc}", False
+        with np.errstate(invalid="ignore"):  # a negative variance is caught just below
+            std = np.sqrt(np.diag(refined.covariance))
+        if (not np.all(np.isfinite(std)) or np.any(std[:3] > cfg.max_std_rotation)
+                or np.any(std[3:] > cfg.max_std_translation)):
+            return None, (f"the motions do not fix the pose: 1-sigma uncertainty "
+                          f"{np.round(std, 4).tolist()} (rad, m) is too large"), True
+        return refined, "", True
+
+    def _family_start(self, live: list[int], with_axis: list[int], tracks: TrackSet
+                      ) -> tuple[RefinementResult | None, str]:
+        """The bundle adjustment started from the motions' pose family (``CalibratorConfig.family_start``).
+
+        The axes fix the rotation and the translation up to a line t0 + s u (``pose_family``). Members
+        are placed where the motions' joints lie ``family_distances`` from the camera; each takes a
+        short robust pass of the bundle adjustment over a subsample of every motion's tracks
+        (``screen_start``), scored alike. The full adjustment then runs from the best, and from every
+        other local minimum along s that scores within ``FAMILY_RIVAL_RATIO`` of it; when those that
+        succeed end at poses that differ (beyond their covariances) and fit all tracks about equally
+        (``FAMILY_MARGIN``), the family is ambiguous and no pose is given.
+
+        Returns:
+            (the checked refinement, "") or (None, why not).
+        """
+        cfg = self.config
+        prefix = "no start from the two-axis pose family"
+        if len(with_axis) < 2:
+            return None, f"{prefix}: it needs 2 motions with non-parallel axes, {len(with_axis)} have an axis"
+        try:
+            R, t0, u = pose_family([self._correspondence(k) for k in with_axis])
+        except ArcCalibError as exc:
+            return None, f"{prefix}: {exc}"
+        joints = np.array([self._motions[k].point_base for k in live])
+        offsets = family_offsets(R, t0, u, joints, np.geomspace(*cfg.family_distances, cfg.family_samples))
+        if offsets.size == 0:
+            return None, (f"{prefix}: no member puts the robot {cfg.family_distances[0]}-"
+                          f"{cfg.family_distances[1]} m in front of the camera")
+        sample = self._screen_track_set(live)
+        screened = [screen_start(sample, transform_from_rt(R, t0 + s * u), cfg.refinement, FAMILY_SCREEN_NFEV,
+                                 FAMILY_CAP_PX) for s in offsets]
+        scores = np.array([score for _, score in screened])
+        if not np.isfinite(scores).any():
+            return None, f"{prefix}: no member sees the tracks in front of the camera"
+        best = int(np.argmin(scores))
+        padded = np.concatenate([[np.inf], scores, [np.inf]])
+        minima = [i for i in range(len(scores)) if padded[i + 1] <= min(padded[i], padded[i + 2])
+                  and i != best and scores[i] <= (1 + FAMILY_RIVAL_RATIO) * scores[best]]
+        candidates = [best] + sorted(minima, key=lambda i: scores[i])[:FAMILY_MAX_RIVALS]
+        results: list[tuple[RefinementResult, float]] = []
+        for i in candidates:
+            polished, _ = screen_start(sample, screened[i][0], cfg.refinement, cfg.refinement.max_nfev, FAMILY_CAP_PX)
+            refined, why, _ = self._refine_checked(tracks, polished, None)
+            if refined is not None:
+                ratio, direction = track_observability(tracks, refined.T_camera_base, refined.track_inliers)
+                if ratio < MIN_OBSERVABILITY:  # noise-free tracks give a small covariance along a free direction
+                    refined, why = None, (f"the tracks cannot fix the pose: (omega, tau / depth) along "
+                                          f"{np.round(direction, 3).tolist()} is free (observability {ratio:.1e} "
+                                          f"< {MIN_OBSERVABILITY})")
+            if refined is None and not results:  # the best member fails: its rivals only serve to judge it
+                return None, f"{prefix}: {why}"
+            if refined is not None:
+                results.append((refined, _fit_score(tracks, refined, FAMILY_CAP_PX)))
+        results.sort(key=lambda r: r[1])
+        chosen, score = results[0]
+        for other, other_score in results[1:]:
+            xi = pose_difference(chosen.T_camera_base, other.T_camera_base)
+            same = xi @ np.linalg.solve(chosen.covariance + other.covariance, xi) < FAMILY_SAME_CHI2
+            if not same and other_score < (1 + FAMILY_MARGIN) * score:
+                er, et = float(np.linalg.norm(xi[:3])), float(np.linalg.norm(xi[3:]))
+                return None, (f"{prefix}: two of its members fit the tracks about equally well ({score:.3g} and "
+                              f"{other_score:.3g} px^2) {er:.3g} rad / {et:.3g} m apart; add motions")
+        return chosen, ""
+
+    def _screen_track_set(self, live: list[int]) -> TrackSet:
+        """A subsample of motions ``live``'s tracks for ``screen_start``: evenly spaced tracks and frames."""
+        motions = []
+        for k in live:
+            m = self._motions[k]
+            picks = np.unique(np.linspace(0, len(m.tracks) - 1, min(len(m.tracks), FAMILY_SCREEN_TRACKS)).round())
+            tracks = []
+            for uv, delta in (m.tracks[int(j)] for j in picks):
+                frames = np.unique(np.linspace(0, len(delta) - 1, min(len(delta), FAMILY_SCREEN_FRAMES)).round())
+                tracks.append((uv[frames.astype(int)], delta[frames.astype(int)]))
+            motions.append((m.axis_base, m.point_base, tracks))
+        return build_track_set(motions, self.intrinsics.focal, self.config.refinement.min_track_frames)
 
     def focal_check(self, scales: Sequence[float] = FOCAL_SCAN_SCALES) -> FocalCheck | None:
         """Whether the camera's focal lengths fit the tracks (None without a refined estimate).

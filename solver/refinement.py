@@ -441,6 +441,36 @@ def pose_information(tracks: TrackSet, T_camera_base: FloatArray) -> FloatArray:
     return 0.5 * (S + S.T)
 
 
+def track_observability(tracks: TrackSet, T_camera_base: FloatArray,
+                        keep: NDArray[np.bool_] | None = None) -> tuple[float, FloatArray]:
+    """How well the tracks fix the pose near T_camera_base, whatever their noise.
+
+    The square roots of the eigenvalues of ``pose_information`` are the singular values of the
+    bundle adjustment's pose Jacobian with the points marginalized out; with the translation in units
+    of the points' mean distance from the camera, their ratio is dimensionless. A direction the tracks
+    leave free (e.g. the depth of joints whose axes all meet in one point, seen without noise) gives a
+    ratio near zero, where the covariance (scaled by the fitted noise) can still look small.
+
+    Args:
+        tracks: the observations (``build_track_set``).
+        T_camera_base: (4, 4) float64: the pose at which to evaluate.
+        keep: (T,) bool: the tracks to use (e.g. ``RefinementResult.track_inliers``); all if None.
+
+    Returns:
+        The ratio of the smallest to the largest singular value (0 when no track can be triangulated),
+        and the weakest direction (6,) of (omega, tau / depth).
+    """
+    if keep is not None:
+        tracks = _subset(tracks, keep)
+    points, ok = triangulate_tracks(tracks, T_camera_base)
+    if not ok.any():
+        return 0.0, np.zeros(6)
+    depth = float(np.mean(np.linalg.norm(points[ok] @ T_camera_base[:3, :3].T + T_camera_base[:3, 3], axis=1)))
+    scale = np.array([1.0, 1.0, 1.0, depth, depth, depth])
+    lam, V = np.linalg.eigh(pose_information(tracks, T_camera_base) * np.outer(scale, scale))
+    return float(np.sqrt(max(lam[0], 0.0) / lam[-1])) if lam[-1] > 0 else 0.0, V[:, 0]
+
+
 def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None = None,
            points_init: FloatArray | None = None) -> RefinementResult:
     """Bundle-adjust T_camera_base and the track points, starting from ``T_init``.
@@ -485,6 +515,37 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     all_points[kept_idx] = pts2
     return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(sol.fun**2))),
                             float(np.sqrt(sigma2)))
+
+
+def screen_start(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig, max_nfev: int,
+                 cap_px: float) -> tuple[FloatArray, float]:
+    """A short robust pass of the bundle adjustment from ``T_init``, scored so that starts compare.
+
+    The points are triangulated from ``T_init`` and the pose and points take at most ``max_nfev``
+    evaluations of the Cauchy pass (``refine``'s first). The score is the mean over every
+    observation of min(r^2, cap_px^2) per coordinate, r the residual where the pass ended, and
+    cap_px^2 for every observation of a track that could not be triangulated (behind the camera):
+    a start that leaves tracks out is not rewarded for it.
+
+    Args:
+        tracks: the observations (``build_track_set``).
+        T_init: (4, 4) float64: the start.
+        config: bundle-adjustment settings (Cauchy scale, ftol).
+        max_nfev: evaluations at most.
+        cap_px: px, the truncation of the score.
+
+    Returns:
+        The pose where the pass ended (4, 4), and the score, px^2 (inf when fewer than two tracks
+        can be triangulated).
+    """
+    points, ok = triangulate_tracks(tracks, T_init)
+    if ok.sum() < 2:
+        return T_init, np.inf
+    T, _, _, _, sol = _solve(_subset(tracks, ok), T_init, points[ok], "cauchy", config.cauchy_scale_px,
+                             max_nfev, ftol=config.robust_ftol)
+    n_left_out = int(np.sum(~ok[tracks.track]))
+    total = float(np.sum(np.minimum(sol.fun**2, cap_px**2))) + 2 * n_left_out * cap_px**2
+    return T, total / (2 * tracks.track.size)
 
 
 def _subset(tracks: TrackSet, keep: NDArray[np.bool_]) -> TrackSet:

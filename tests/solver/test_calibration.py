@@ -11,6 +11,7 @@ from solver.calibration import (
     AxisCorrespondence,
     check_observable,
     consistency_errors,
+    family_offsets,
     pose_family,
     pose_observability,
     solve_consensus,
@@ -281,3 +282,23 @@ def test_pose_family_needs_two_non_parallel_axes(T_true, rng):
     parallel = [_correspondence(T_true, a, rng.uniform(-0.4, 0.4, 3)) for _ in range(2)]
     with pytest.raises(UnobservablePoseError):
         pose_family(parallel)
+
+
+def test_family_offsets_place_the_robot_at_the_distances_in_front(T_true, rng):
+    motions = _random_correspondences(T_true, rng, 2)
+    R, t0, u = pose_family(motions)
+    points = rng.uniform(-0.4, 0.4, (5, 3))
+    centre_cam = T_true[:3, :3] @ points.mean(axis=0) + T_true[:3, 3]
+    true_distance = float(np.linalg.norm(centre_cam))
+    distances = np.array([0.5, true_distance, 3.0, 5.0])
+    s = family_offsets(R, t0, u, points, distances)
+    assert np.all(np.diff(s) > 0)
+    members = R @ points.mean(axis=0) + t0 + np.outer(s, u)  # the centroid in the camera frame per member
+    assert np.all(members[:, 2] > 0)
+    reached = np.linalg.norm(members, axis=1)
+    assert np.all(np.min(np.abs(reached[:, None] - distances[None]), axis=1) < POSE_TOL)
+    s_true = (T_true[:3, 3] - t0) @ u
+    assert np.min(np.abs(s - s_true)) < POSE_TOL  # the true pose is a member
+    # nearer than the line p0 + s u passes to the camera centre: no member
+    line_distance = np.linalg.norm(members[0] - (members[0] @ u) * u)
+    assert family_offsets(R, t0, u, points, np.array([0.5 * line_distance])).size == 0

@@ -22,10 +22,12 @@ from solver import (
     SyntheticScene,
     d415_intrinsics,
     estimate_motion_geometry,
+    pipeline,
     pose_difference,
     pose_errors,
     sample_camera_pose,
 )
+from solver.calibration import AxisCorrespondence, family_offsets, pose_family
 from solver.rigid_axis import RigidAxisConfig
 
 #: Noise-free recovery at the end of an episode (the issue's bound).
@@ -108,8 +110,9 @@ def test_a_linear_pose_the_refinement_rejects_is_withheld():
     T = sample_camera_pose(rng)
     scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1,
                                                         tracks_per_motion=30), rng)
-    # no pose can meet a 1-nanometre bound, so the refinement rejects every one
-    strict = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(max_std_translation=1e-9))
+    # no pose can meet a 1-nanometre bound, so the refinement rejects every one (the family start, which
+    # the same check rejects, is off: it would add a bundle adjustment per motion to this test)
+    strict = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(max_std_translation=1e-9, family_start=False))
     linear_only = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(refine=False))
     for _ in range(12):
         obs = scene.random_motion(rng).observation
@@ -144,6 +147,90 @@ def test_shoulder_joints_alone_never_give_a_pose():
     assert "lines, not ellipses" in report.stage_one
     assert cal.state.T_camera_base is None
     assert "1 of 9 motions gave no axis" in cal.state.message
+
+
+def _stage_one_for(monkeypatch, n_axes):
+    """Let stage one give an axis to the first ``n_axes`` motions where it finds one, and none after."""
+    real = pipeline.estimate_motion_geometry
+    found = []
+
+    def limited(obs, *args, **kwargs):
+        if len(found) >= n_axes:
+            raise DegenerateMotionError("stage one switched off by the test")
+        geometry = real(obs, *args, **kwargs)
+        found.append(geometry)
+        return geometry
+
+    monkeypatch.setattr(pipeline, "estimate_motion_geometry", limited)
+
+
+def test_two_axes_start_the_bundle_adjustment_from_the_pose_family(monkeypatch):
+    """Only two motions give an axis; the others carry tracks. The pose comes from the family member
+    that explains every motion's tracks, though the family spans members metres off."""
+    _stage_one_for(monkeypatch, 2)
+    rng = np.random.default_rng(1)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=20),
+                           rng)
+    cal = Calibrator(K, PANDA.axis_and_point)
+    first = None
+    observations = [scene.random_motion(rng).observation for _ in range(7)]
+    for obs in observations:
+        cal.add_motion(obs)
+        if first is None and cal.state.T_camera_base is not None:
+            first = cal.state
+    with_axis = [k for k in range(7) if cal.motion_geometry(k) is not None]
+    assert len(with_axis) == 2
+    assert first is not None and first.stage == "refined" and first.start == "family"
+    assert first.T_linear is None
+    rot, trans = pose_errors(first.T_camera_base, T)
+    assert rot < NOISY_ROT and trans < NOISY_TRANS
+    xi = pose_difference(first.T_camera_base, T)
+    assert xi @ np.linalg.solve(first.covariance, xi) < CHI2_6_999
+    assert not first.converged
+    # the choice was not trivial: the family holds members far from the true pose
+    cors = []
+    for k in with_axis:
+        axis_base, point_base = PANDA.axis_and_point(observations[k].q_start, observations[k].joint)
+        g = cal.motion_geometry(k)
+        cors.append(AxisCorrespondence(axis_base, point_base, g.axis_cam, g.plane_normal))
+    R, t0, u = pose_family(cors)
+    joints = np.array([PANDA.axis_and_point(obs.q_start, obs.joint)[1] for obs in observations])
+    s = family_offsets(R, t0, u, joints, np.geomspace(*cal.config.family_distances, cal.config.family_samples))
+    assert np.ptp(np.linalg.norm(t0 + np.outer(s, u) - T[:3, 3], axis=1)) > 1.0
+    # later motions warm-start from it and stay accurate
+    s_end = cal.state
+    assert s_end.stage == "refined" and s_end.start == "previous"
+    rot, trans = pose_errors(s_end.T_camera_base, T)
+    assert rot < NOISY_ROT and trans < NOISY_TRANS
+
+
+def test_one_axis_gives_no_pose_and_says_why(monkeypatch):
+    _stage_one_for(monkeypatch, 1)
+    rng = np.random.default_rng(1)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=15),
+                           rng)
+    cal = Calibrator(K, PANDA.axis_and_point)
+    for _ in range(4):
+        cal.add_motion(scene.random_motion(rng).observation)
+    s = cal.state
+    assert s.T_camera_base is None and s.stage == "none" and s.start == "" and not s.converged
+    assert "1 motion(s) with an axis; the linear calibration needs 3" in s.message
+    assert "no start from the two-axis pose family: it needs 2 motions with non-parallel axes" in s.message
+
+
+def test_parallel_axes_give_no_family_start():
+    rng = np.random.default_rng(8)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.0, outlier_fraction=0.0, tracks_per_motion=12),
+                           rng)
+    cal = Calibrator(K, PANDA.axis_and_point)
+    for _ in range(2):  # the base joint's axis is the base z axis at every configuration
+        cal.add_motion(scene.random_motion(rng, joints=(0,)).observation)
+    assert cal.motion_geometry(0) is not None and cal.motion_geometry(1) is not None
+    assert cal.state.T_camera_base is None
+    assert re.search(r"no start from the two-axis pose family: .*parallel", cal.state.message)
 
 
 def test_motion_where_nothing_moved_is_rejected_with_reason(exact_episode):

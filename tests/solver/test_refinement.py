@@ -21,6 +21,8 @@ from solver.refinement import (
     pose_covariance,
     pose_information,
     refine,
+    screen_start,
+    track_observability,
     triangulate_tracks,
 )
 from tests.solver.scene import FOCAL, FX, project_normalized, random_pose, random_unit
@@ -59,14 +61,19 @@ class Scene:
 
 
 def _make_scene(seed: int, n_motions: int = 4, n_tracks: int = 5, n_frames: int = 20,
-                noise_px: float = 0.0) -> Scene:
-    """Keypoints fixed on links turned about known axes, projected by a plain pinhole."""
+                noise_px: float = 0.0, pivot: np.ndarray | None = None) -> Scene:
+    """Keypoints fixed on links turned about known axes, projected by a plain pinhole.
+
+    With ``pivot`` (3,) m every axis passes through that base-frame point (else each its own).
+    """
     rng = np.random.default_rng(seed)
     T = random_pose(rng)
     R, t = T[:3, :3], T[:3, 3]
     motions, points = [], []
+    common = pivot
     for _ in range(n_motions):
         axis, pivot = random_unit(rng), rng.uniform(-0.3, 0.3, 3)
+        pivot = pivot if common is None else np.asarray(common, dtype=np.float64)
         delta = np.linspace(0.0, rng.uniform(0.8, 1.5), n_frames)
         turns = Rotation.from_rotvec(np.outer(delta, axis))
         tracks = []
@@ -307,6 +314,54 @@ def test_pose_information_adds_over_motions_and_ignores_static_tracks():
     with_static = pose_information(build_track_set([*scene.motions, (axis, pivot, [static])], FOCAL),
                                    scene.T_true)
     np.testing.assert_allclose(with_static, whole, rtol=1e-8, atol=1e-8 * np.abs(whole).max())
+
+
+#: Truncation of the screening score in the tests, px.
+CAP_PX = 3.0
+
+
+def test_screen_start_scores_the_true_pose_best_and_counts_tracks_behind_the_camera():
+    scene = _make_scene(16, n_motions=3, n_tracks=4, noise_px=NOISE_PX)
+    tracks = build_track_set(scene.motions, FOCAL)
+    config = RefinementConfig()
+    T_true = scene.T_true
+    _, at_truth = screen_start(tracks, T_true, config, 10, CAP_PX)
+    assert at_truth < 2 * NOISE_PX**2  # residual variance per coordinate, ~NOISE_PX^2 minus the fitted points
+    deeper = T_true.copy()
+    deeper[:3, 3] *= 1.5  # the scene half as far again along the camera's rays
+    _, at_deeper = screen_start(tracks, deeper, config, 10, CAP_PX)
+    assert at_deeper > 4 * at_truth
+    away = T_true.copy()
+    turn = Rotation.from_rotvec([0.0, np.pi, 0.0])
+    away[:3, :3] = turn.as_matrix() @ T_true[:3, :3]
+    away[:3, 3] = turn.apply(T_true[:3, 3])  # the camera turned to look away from the scene
+    _, ok = triangulate_tracks(tracks, away)
+    assert 0 < ok.sum() < ok.size  # the rays meet a mirrored scene for some tracks only
+    left_out = float(np.mean(~ok[tracks.track]))
+    _, at_away = screen_start(tracks, away, config, 10, CAP_PX)
+    assert left_out * CAP_PX**2 <= at_away <= CAP_PX**2  # every observation of a left-out track costs the cap
+    # with only the tracks that cannot be triangulated, nothing is scored
+    flat = [(m, track) for m, (_, _, ts) in enumerate(scene.motions) for track in ts]
+    behind = [(axis, pivot, [track for (m, track), k in zip(flat, ~ok, strict=True) if k and m == i])
+              for i, (axis, pivot, _) in enumerate(scene.motions)]
+    T_end, score = screen_start(build_track_set(behind, FOCAL), away, config, 10, CAP_PX)
+    assert score == np.inf and np.array_equal(T_end, away)
+
+
+def test_track_observability_finds_the_free_depth_of_axes_through_one_point():
+    pivot = np.array([0.1, -0.05, 0.2])
+    scene = _make_scene(17, n_motions=4, n_tracks=4, pivot=pivot)
+    ratio, direction = track_observability(build_track_set(scene.motions, FOCAL), scene.T_true)
+    assert ratio < 1e-6  # noise-free: only rounding
+    # the free direction scales the scene about the camera centre: tau along the pivot's ray, omega zero
+    ray = scene.T_true[:3, :3] @ pivot + scene.T_true[:3, 3]
+    assert abs(direction[3:] @ ray) / (np.linalg.norm(direction) * np.linalg.norm(ray)) > 1 - 1e-6
+    free = _make_scene(17, n_motions=4, n_tracks=4)
+    ratio, _ = track_observability(build_track_set(free.motions, FOCAL), free.T_true)
+    assert ratio > 1e-2
+    keep = np.zeros(16, dtype=bool)
+    keep[:4] = True  # one motion's tracks alone: its own axis's depth is free
+    assert track_observability(build_track_set(free.motions, FOCAL), free.T_true, keep)[0] < 1e-6
 
 
 def test_refine_rejects_non_finite_start():
