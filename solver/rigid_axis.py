@@ -28,7 +28,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from solver.arrays import FloatArray
@@ -57,6 +56,8 @@ class RigidAxisConfig:
         max_fit_tracks: the fit uses at most this many tracks (evenly spread over the list); every
             track is then checked against it; count.
         max_fit_frames: frames per track the fit uses (evenly spaced); count.
+        enough_inlier_fraction: once a start's fit keeps at least this fraction of the fit tracks,
+            the remaining starts are not tried (no other rigid motion can explain more of them).
     """
 
     min_tracks: int = 6
@@ -68,15 +69,18 @@ class RigidAxisConfig:
     min_inlier_fraction: float = 0.3
     max_fit_tracks: int = 40
     max_fit_frames: int = 12
+    enough_inlier_fraction: float = 0.9
 
     def __post_init__(self) -> None:
         if self.min_tracks < 5:
             raise InvalidInputError("RigidAxisConfig: min_tracks must be >= 5 (the essential matrix needs 5)")
         if not (self.min_pair_angle > 0 and self.ransac_px > 0 and self.max_track_rms_px > 0
                 and self.loss_scale_px > 0 and self.max_axis_std > 0 and 0 < self.min_inlier_fraction <= 1
-                and self.max_fit_tracks >= self.min_tracks and self.max_fit_frames >= 3):
-            raise InvalidInputError("RigidAxisConfig: angles, thresholds and scales must be > 0, "
-                                    "min_inlier_fraction in (0, 1], max_fit_tracks >= min_tracks, max_fit_frames >= 3")
+                and self.max_fit_tracks >= self.min_tracks and self.max_fit_frames >= 3
+                and 0 < self.enough_inlier_fraction <= 1):
+            raise InvalidInputError("RigidAxisConfig: angles, thresholds and scales must be > 0, min_inlier_fraction "
+                                    "and enough_inlier_fraction in (0, 1], max_fit_tracks >= min_tracks, "
+                                    "max_fit_frames >= 3")
 
 
 @dataclass(frozen=True)
@@ -167,129 +171,365 @@ def _relative_pose(uv: list[FloatArray], frames: list[NDArray[np.int64]], angles
     return starts
 
 
-def _triangulate(uv: FloatArray, delta: FloatArray, a: FloatArray, p: FloatArray) -> FloatArray:
-    """X0 (3,) of one track under the model, by linear least squares (cross-product form)."""
-    Rs = Rotation.from_rotvec(delta[:, None] * a[None]).as_matrix()  # (n, 3, 3)
-    rays = np.column_stack([uv, np.ones(len(uv))])
-    # x_f cross (R_f X0 + (I - R_f) p) = 0, linear in X0.
-    skew = np.zeros((len(uv), 3, 3))
-    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -rays[:, 2], rays[:, 1], -rays[:, 0]
-    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = rays[:, 2], -rays[:, 1], rays[:, 0]
-    A = np.einsum("fij,fjk->fik", skew, Rs).reshape(-1, 3)
-    b = -np.einsum("fij,fj->fi", skew, p[None] - np.einsum("fij,j->fi", Rs, p)).reshape(-1)
-    X0, *_ = np.linalg.lstsq(A, b, rcond=None)
-    return X0
+@dataclass(frozen=True)
+class _Tracks:
+    """The frames of several tracks, concatenated track after track.
 
-
-def _reprojection(Rs: FloatArray, X0: FloatArray, p: FloatArray, uv: FloatArray, focal: float) -> FloatArray:
-    """Residuals (2 F,) px of points X0 (F, 3) or (3,) turned by Rs (F, 3, 3) about p, against uv (F, 2)."""
-    X = np.einsum("fij,fj->fi", Rs, np.broadcast_to(X0 - p, (Rs.shape[0], 3))) + p
-    z = np.where(np.abs(X[:, 2:3]) < 1e-6, 1e-6, X[:, 2:3])
-    return ((X[:, :2] / z - uv) * focal).ravel()
-
-
-def _track_rms(uv: FloatArray, delta: FloatArray, a: FloatArray, p: FloatArray, focal: float) -> float:
-    """RMS residual, px, of one track's best point under a fixed rigid motion (a, p)."""
-    Rs = Rotation.from_rotvec(delta[:, None] * a[None]).as_matrix()
-
-    def residuals(X0: FloatArray) -> FloatArray:
-        return _reprojection(Rs, X0, p, uv, focal)
-
-    result = least_squares(residuals, _triangulate(uv, delta, a, p), method="lm", max_nfev=50)
-    return float(np.sqrt(2.0 * np.mean(result.fun ** 2)))
-
-
-def _refine(uv: list[FloatArray], deltas: list[FloatArray], a0: FloatArray, p0: FloatArray,
-            X0: FloatArray, focal: float, config: RigidAxisConfig):
-    """Robust least squares over (axis: 2, point angle: 1, X0: 3 per track).
-
-    Returns a (3,), p (3,), X0 (T, 3), track RMS (T,) px and the axis 1-sigma, rad.
+    Attributes:
+        uv: (N, 2) normalized camera coordinates of every frame.
+        delta: (N,) rad, the joint's turn in every frame.
+        track: (N,) the track of every frame (0..T-1, non-decreasing).
+        first: (T,) index of every track's first frame in the arrays above.
     """
-    u0, v0 = _basis(a0)
-    theta0 = np.arctan2(p0 @ v0, p0 @ u0)
-    n_obs = np.array([len(d) for d in deltas])
-    starts = np.concatenate([[0], np.cumsum(n_obs)])
-    track_of = np.repeat(np.arange(len(uv)), n_obs)
-    all_uv = np.concatenate(uv)
-    all_delta = np.concatenate(deltas)
 
-    def unpack(x):
-        # a turned by a small rotation; theta measured in the basis turned with it (continuous)
-        R_turn = Rotation.from_rotvec(x[0] * u0 + x[1] * v0)
-        a, u, v = R_turn.apply(a0), R_turn.apply(u0), R_turn.apply(v0)
-        p = np.cos(x[2]) * u + np.sin(x[2]) * v
-        return a, p, x[3:].reshape(-1, 3)
+    uv: FloatArray
+    delta: FloatArray
+    track: NDArray[np.int64]
+    first: NDArray[np.int64]
 
-    def residuals(x):
-        a, p, X = unpack(x)
-        Rs = Rotation.from_rotvec(all_delta[:, None] * a[None]).as_matrix()
-        return _reprojection(Rs, X[track_of], p, all_uv, focal)
+    @staticmethod
+    def of(uv: list[FloatArray], deltas: list[FloatArray]) -> _Tracks:
+        n_obs = np.array([len(d) for d in deltas], dtype=np.int64)
+        return _Tracks(np.concatenate(uv), np.concatenate(deltas), np.repeat(np.arange(len(uv)), n_obs),
+                       np.concatenate([[0], np.cumsum(n_obs)[:-1]]).astype(np.int64))
 
-    n = len(uv)
-    row_track = np.repeat(track_of, 2)  # residual rows: (u, v) per observation
-    x0 = np.concatenate([[0.0, 0.0, theta0], X0.ravel()])
-    # The exact trust-region solver on the small dense matrix converges in a few steps (lsmr, scipy's
-    # choice for a sparse pattern, takes inexact steps that crawl along the axis-depth valley).
-    result = least_squares(residuals, x0, jac=lambda x: _jacobian(residuals, x, row_track),
-                           tr_solver="exact", loss="cauchy", f_scale=config.loss_scale_px, x_scale="jac",
-                           max_nfev=100)
-    a, p, X = unpack(result.x)
-    r = result.fun.reshape(-1, 2)
-    track_rms = np.array([np.sqrt(np.mean(np.sum(r[starts[t]:starts[t + 1]] ** 2, axis=1)))
-                          for t in range(n)])
-    # Covariance of the axis angles (x[0], x[1]) from the Schur complement of the Gauss-Newton normal
-    # matrix, with the residuals' robust scale.
-    axis_std = _axis_std(np.asarray(result.jac), n, result.fun)
-    return a, p, X, track_rms, axis_std
+    def per_track(self, values: FloatArray) -> FloatArray:
+        """Sums of per-frame values (N, ...) over each track's frames: (T, ...)."""
+        return np.add.reduceat(values, self.first, axis=0)
 
 
-def _jacobian(residuals, x: FloatArray, row_track: NDArray[np.int64]) -> FloatArray:
-    """Forward-difference Jacobian (R, 3 + 3 T) of the residuals at x.
+def _skew(v: FloatArray) -> FloatArray:
+    """Cross-product matrices (..., 3, 3) of vectors v (..., 3): skew(v) @ w = v x w."""
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return S
 
-    The 3 shared columns one by one, then each of the 3 per-track columns of every track at once
-    (tracks touch disjoint rows): 6 evaluations whatever the number of tracks.
+
+def _rotations(delta: FloatArray, a: FloatArray) -> FloatArray:
+    """Rotations (N, 3, 3) by angles delta (N,) rad about the unit axis a (3,) (Rodrigues)."""
+    c, s = np.cos(delta)[:, None, None], np.sin(delta)[:, None, None]
+    return c * np.eye(3) + s * _skew(a) + (1.0 - c) * np.outer(a, a)
+
+
+def _triangulate(tracks: _Tracks, Rs: FloatArray, p: FloatArray) -> FloatArray:
+    """X0 (T, 3) of every track under the rotations Rs (N, 3, 3) about p, by linear least squares.
+
+    Each frame's ray x gives x cross (R X0 + (I - R) p) = 0, linear in X0; the normal equations of
+    each track are solved on their own.
     """
-    f0 = residuals(x)
-    J = np.zeros((f0.size, x.size))
-    rows = np.arange(f0.size)
-    n_tracks = (x.size - 3) // 3
-    for c in range(3):
-        step = 1e-7 * max(1.0, abs(x[c]))
-        xp = x.copy()
-        xp[c] += step
-        J[:, c] = (residuals(xp) - f0) / step
-    for c in range(3):
-        cols = 3 + 3 * np.arange(n_tracks) + c
-        steps = 1e-7 * np.maximum(1.0, np.abs(x[cols]))
-        xp = x.copy()
-        xp[cols] += steps
-        J[rows, cols[row_track]] = (residuals(xp) - f0) / steps[row_track]
-    return J
+    skew = _skew(np.column_stack([tracks.uv, np.ones(len(tracks.uv))]))
+    A = skew @ Rs  # (N, 3, 3)
+    b = -np.einsum("nij,nj->ni", skew, p - np.einsum("nij,j->ni", Rs, p))
+    AtA = tracks.per_track(np.einsum("nki,nkj->nij", A, A))
+    Atb = tracks.per_track(np.einsum("nki,nk->ni", A, b))
+    return np.linalg.solve(AtA + 1e-12 * np.eye(3), Atb[..., None])[..., 0]
 
 
-def _axis_std(J, n_tracks: int, fun: FloatArray) -> float:
-    """Largest 1-sigma of the two axis angles: Schur complement over the per-track points."""
-    G = J[:, :3]
-    H_gg = G.T @ G
-    S = H_gg.copy()
-    for t in range(n_tracks):
-        cols = slice(3 + 3 * t, 6 + 3 * t)
-        B = J[:, cols]
-        rows = np.flatnonzero(np.any(B != 0, axis=1))
-        Bt, Gt = B[rows], G[rows]
-        H_pp = Bt.T @ Bt
-        H_gp = Gt.T @ Bt
-        try:
-            S -= H_gp @ np.linalg.solve(H_pp + 1e-12 * np.eye(3), H_gp.T)
-        except np.linalg.LinAlgError:
-            return float("inf")
-    sigma2 = max(float(np.median(fun ** 2) / 0.455), 1e-4)  # robust per-coordinate variance, px^2
+def _residuals(tracks: _Tracks, Rs: FloatArray, p: FloatArray, X0: FloatArray, focal: float,
+               jacobian: bool = False):
+    """Reprojection residuals (N, 2) px of the track points X0 (T, 3) turned by Rs (N, 3, 3) about p (3,).
+
+    With ``jacobian``, also their derivatives (N, 2, 3) with respect to a small rotation w of the
+    line's frame (a <- exp(w) a, p <- exp(w) p) and (N, 2, 3) with respect to the frame's track point.
+    """
+    Xt = X0[tracks.track]
+    X = np.einsum("nij,nj->ni", Rs, Xt - p) + p
+    z = np.where(np.abs(X[:, 2]) < 1e-6, 1e-6, X[:, 2])
+    r = (X[:, :2] / z[:, None] - tracks.uv) * focal
+    if not jacobian:
+        return r
+    # d(pixel)/dX, then dX/dX0 = R and dX/dw = R [X0]x - [X]x (R conjugated by exp(w), p turned by it).
+    P = np.zeros((len(z), 2, 3))
+    P[:, 0, 0] = P[:, 1, 1] = focal / z
+    P[:, :, 2] = -focal * X[:, :2] / z[:, None] ** 2
+    J_point = P @ Rs
+    J_frame = J_point @ _skew(Xt) - P @ _skew(X)
+    return r, J_frame, J_point
+
+
+def _normal_blocks(tracks: _Tracks, w: FloatArray, wr: FloatArray, J_frame: FloatArray, J_point: FloatArray):
+    """Blocks of the weighted normal matrix J^T W J (weights w (N, 2)) and the gradient J^T wr (wr (N, 2)).
+
+    Returns H_gg (3, 3), H_gp (T, 3, 3), H_pp (T, 3, 3), g_g (3,), g_p (T, 3): g for the frame's
+    rotation, p for each track's point.
+    """
+    WJg, WJp = w[..., None] * J_frame, w[..., None] * J_point
+    H_gg = np.einsum("nki,nkj->ij", WJg, J_frame)
+    H_gp = tracks.per_track(np.einsum("nki,nkj->nij", WJg, J_point))
+    H_pp = tracks.per_track(np.einsum("nki,nkj->nij", WJp, J_point))
+    g_g = np.einsum("nki,nk->i", J_frame, wr)
+    g_p = tracks.per_track(np.einsum("nki,nk->ni", J_point, wr))
+    return H_gg, H_gp, H_pp, g_g, g_p
+
+
+def _hessian_weights(z: FloatArray) -> FloatArray:
+    """Gauss-Newton weights of the Cauchy loss rho(z) = log(1 + z) at squared scaled residuals z (N, 2).
+
+    rho' + 2 z rho'' (Triggs' correction, as scipy's least_squares uses): residuals beyond the
+    loss's scale (z > 1) weigh (almost) nothing in the normal matrix, though they pull the gradient.
+    """
+    return np.maximum((1.0 - z) / (1.0 + z) ** 2, np.finfo(float).eps)
+
+
+def _damping_scale(H: FloatArray) -> FloatArray:
+    """Marquardt's damping scale of normal matrices H (..., 3, 3): their diagonals (..., 3), floored.
+
+    The floor (a 1e-12 fraction of the largest) keeps the damped matrices positive definite when a
+    direction is unobserved (a point drifting to infinity along its ray).
+    """
+    d = np.diagonal(H, axis1=-2, axis2=-1)
+    return np.maximum(d, 1e-12 * np.max(d, axis=-1, keepdims=True) + 1e-300)
+
+
+def _turn(w: FloatArray, a: FloatArray, p: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The line's frame (a, p) turned by the small rotation vector w (3,), kept orthonormal."""
+    angle = float(np.linalg.norm(w))
+    if angle > 0:
+        R = _rotations(np.array([angle]), w / angle)[0]
+        a, p = R @ a, R @ p
+    a = a / np.linalg.norm(a)
+    p = p - a * (a @ p)
+    return a, p / np.linalg.norm(p)
+
+
+class _ArrowSystem:
+    """Normal equations (H + alpha I) x = b of the shared (g, 3) and per-track (p, 3 each) unknowns.
+
+    H is arrow-shaped: H_gg (3, 3), H_gp (T, 3, 3), H_pp (T, 3, 3) with the tracks' blocks independent.
+    Each track's block is diagonalized once, so any alpha costs one 3 x 3 solve: the points are
+    eliminated track by track (Schur complement) through their eigenvalues.
+    """
+
+    def __init__(self, H_gg: FloatArray, H_gp: FloatArray, H_pp: FloatArray, n_residuals: int):
+        self.H_gg = H_gg
+        lam, self.Q = np.linalg.eigh(H_pp)  # (T, 3), (T, 3, 3)
+        self.lam = np.maximum(lam, 0.0)
+        self.W = H_gp @ self.Q  # H_gp in each track's eigenbasis
+        # Full rank as scipy's least_squares judges it: the least singular value of the Jacobian above
+        # eps * (number of residuals) times the largest.
+        S0 = H_gg - np.einsum("tik,tk,tjk->ij", self.W, 1.0 / np.maximum(self.lam, 1e-300), self.W)
+        eig_s = np.linalg.eigvalsh(S0) if np.all(np.isfinite(S0)) else np.array([-1.0])
+        largest = max(float(self.lam.max(initial=0.0)), float(eig_s.max()))
+        threshold = (np.finfo(float).eps * n_residuals) ** 2 * largest
+        self.full_rank = bool(self.lam.min(initial=np.inf) > threshold and eig_s.min() > threshold)
+
+    def solve(self, alpha: float, b_g: FloatArray, b_p: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """x_g (3,), x_p (T, 3) for b_g (3,), b_p (T, 3)."""
+        inv = 1.0 / (self.lam + alpha)
+        S = self.H_gg + alpha * np.eye(3) - np.einsum("tik,tk,tjk->ij", self.W, inv, self.W)
+        c_p = np.einsum("tji,tj->ti", self.Q, b_p) * inv
+        x_g = np.linalg.solve(S, b_g - np.einsum("tik,tk->i", self.W, c_p))
+        return x_g, np.einsum("tij,tj->ti", self.Q, c_p - inv * np.einsum("tik,i->tk", self.W, x_g))
+
+
+def _trust_region_step(system: _ArrowSystem, g_g: FloatArray, g_p: FloatArray, radius: float,
+                       alpha: float) -> tuple[FloatArray, FloatArray, float]:
+    """The step (3,), (T, 3) of length ``radius`` (or shorter: Gauss-Newton) minimizing the model.
+
+    The model is 0.5 x^T H x + g^T x in scaled variables; the Levenberg-Marquardt parameter alpha is
+    found by Newton's method on the step's length (More's, as scipy's ``solve_lsq_trust_region``
+    does with an SVD of the Jacobian; here through the arrow system). Returns the step and alpha.
+    """
+
+    def step_and_phi(a: float) -> tuple[FloatArray, FloatArray, float, float]:
+        x_g, x_p = system.solve(a, -g_g, -g_p)
+        norm = float(np.sqrt(x_g @ x_g + np.sum(x_p ** 2)))
+        q_g, q_p = system.solve(a, x_g, x_p)
+        return x_g, x_p, norm - radius, -float(x_g @ q_g + np.sum(x_p * q_p)) / norm
+
+    full_rank = system.full_rank
+    if full_rank:
+        x_g, x_p, phi, phi_prime = step_and_phi(0.0)
+        # (the Schur complement of a nearly singular system can lose the step's accuracy: then as
+        # rank deficient)
+        full_rank = bool(np.isfinite(phi) and np.isfinite(phi_prime) and phi_prime < 0)
+        if full_rank and phi <= 0:
+            return x_g, x_p, 0.0
+    alpha_upper = float(np.sqrt(g_g @ g_g + np.sum(g_p ** 2))) / radius
+    alpha_lower = -phi / phi_prime if full_rank else 0.0
+    if not full_rank and alpha == 0:
+        alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
+    for _ in range(10):
+        if alpha < alpha_lower or alpha > alpha_upper:
+            alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
+        _, _, phi, phi_prime = step_and_phi(alpha)
+        if phi < 0:
+            alpha_upper = alpha
+        ratio = phi / phi_prime
+        alpha_lower = max(alpha_lower, alpha - ratio)
+        alpha -= (phi + radius) * ratio / radius
+        if abs(phi) < 0.01 * radius:
+            break
+    x_g, x_p = system.solve(alpha, -g_g, -g_p)
+    shrink = radius / float(np.sqrt(x_g @ x_g + np.sum(x_p ** 2)))
+    return x_g * shrink, x_p * shrink, alpha
+
+
+def _refine(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal: float,
+            config: RigidAxisConfig, max_evaluations: int = 100):
+    """Robust (Cauchy) least squares over the line (a, p: 3 degrees of freedom) and every track's point.
+
+    scipy's trust-region reflective method without bounds (``least_squares(method="trf",
+    tr_solver="exact", x_scale="jac", loss="cauchy")``: Triggs' robust scaling, Jacobian-scaled
+    variables, More's exact trust-region steps, its radius updates and ftol/xtol/gtol = 1e-8 tests),
+    with the analytic Jacobian and the normal equations solved through the Schur complement over the
+    points instead of an SVD of the dense Jacobian. The line's three unknowns: tilts of the axis about
+    the start's two normals (u, v) and a turn of p about the axis.
+
+    Returns a (3,), p (3,), X0 (T, 3) and every track's RMS residual (T,) px.
+    """
+    s2 = config.loss_scale_px ** 2
+    u, v = _basis(a)
+
+    def cost(r: FloatArray) -> float:
+        return 0.5 * s2 * float(np.sum(np.log1p(r ** 2 / s2)))
+
+    def linearize(a: FloatArray, p: FloatArray, X0: FloatArray):
+        r, J_frame, J_point = _residuals(tracks, _rotations(tracks.delta, a), p, X0, focal, jacobian=True)
+        z = r ** 2 / s2
+        blocks = _normal_blocks(tracks, _hessian_weights(z), r / (1.0 + z),
+                                J_frame @ np.column_stack([u, v, a]), J_point)
+        scale_inv = (np.sqrt(np.diag(blocks[0])), np.sqrt(np.diagonal(blocks[2], axis1=1, axis2=2)))
+        return r, blocks, scale_inv
+
+    r, blocks, (inv_g, inv_p) = linearize(a, p, X0)
+    inv_g, inv_p = np.where(inv_g == 0, 1.0, inv_g), np.where(inv_p == 0, 1.0, inv_p)
+    c = cost(r)
+    theta = float(np.arctan2(p @ v, p @ u))  # scipy's x: (0, 0, theta, X0), its norm in the xtol test
+    radius = float(np.sqrt((theta * inv_g[2]) ** 2 + np.sum((X0 * inv_p) ** 2))) or 1.0
+    alpha, n_eval, done = 0.0, 1, False
+    while not done and n_eval < max_evaluations:
+        H_gg, H_gp, H_pp, g_g, g_p = blocks
+        if max(np.max(np.abs(g_g)), np.max(np.abs(g_p))) < 1e-8:
+            break
+        d_g, d_p = 1.0 / inv_g, 1.0 / inv_p  # the variables scaled by the Jacobian's column norms
+        H_gg, H_gp, H_pp = (H_gg * np.outer(d_g, d_g), H_gp * d_g[None, :, None] * d_p[:, None, :],
+                            H_pp * d_p[:, :, None] * d_p[:, None, :])
+        g_g, g_p = g_g * d_g, g_p * d_p
+        system = _ArrowSystem(H_gg, H_gp, H_pp, r.size)
+        reduction = -1.0
+        while reduction <= 0 and n_eval < max_evaluations:
+            h_g, h_p, alpha = _trust_region_step(system, g_g, g_p, radius, alpha)
+            Hh_g = H_gg @ h_g + np.einsum("tij,tj->i", H_gp, h_p)
+            Hh_p = np.einsum("tji,j->ti", H_gp, h_g) + np.einsum("tij,tj->ti", H_pp, h_p)
+            predicted = -(0.5 * (h_g @ Hh_g + np.sum(h_p * Hh_p)) + h_g @ g_g + np.sum(h_p * g_p))
+            step_g, step_p = h_g * d_g, h_p * d_p
+            a_new, p_new = _turn(np.column_stack([u, v, a]) @ step_g, a, p)
+            X0_new = X0 + step_p
+            r_new = _residuals(tracks, _rotations(tracks.delta, a_new), p_new, X0_new, focal)
+            n_eval += 1
+            h_norm = float(np.sqrt(h_g @ h_g + np.sum(h_p ** 2)))
+            if not np.all(np.isfinite(r_new)):
+                radius = 0.25 * h_norm
+                continue
+            c_new = cost(r_new)
+            reduction = c - c_new
+            ratio = reduction / predicted if predicted > 0 else (1.0 if predicted == reduction == 0 else 0.0)
+            if ratio < 0.25:
+                new_radius = 0.25 * h_norm
+            elif ratio > 0.75 and h_norm > 0.95 * radius:
+                new_radius = 2.0 * radius
+            else:
+                new_radius = radius
+            step_norm = float(np.sqrt(step_g @ step_g + np.sum(step_p ** 2)))
+            x_norm = float(np.sqrt((theta + step_g[2]) ** 2 + np.sum(X0_new ** 2)))
+            done = (reduction < 1e-8 * c and ratio > 0.25) or step_norm < 1e-8 * (1e-8 + x_norm)
+            if done:
+                break
+            alpha *= radius / new_radius
+            radius = new_radius
+        if reduction > 0:
+            a, p, X0, c, theta = a_new, p_new, X0_new, c_new, theta + step_g[2]
+            r, blocks, (new_g, new_p) = linearize(a, p, X0)
+            inv_g, inv_p = np.maximum(inv_g, new_g), np.maximum(inv_p, new_p)
+    track_rms = np.sqrt(tracks.per_track(np.sum(r ** 2, axis=1)) / np.diff(np.append(tracks.first, len(r))))
+    return a, p, X0, track_rms
+
+
+def _axis_std(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal: float,
+              config: RigidAxisConfig) -> float:
+    """Largest 1-sigma, rad, of the axis direction's two angles at a fit, with the points marginalized.
+
+    The Gauss-Newton normal matrix of the robust cost (Triggs' weights of the Cauchy loss, as scipy's
+    least_squares reports its Jacobian), its Schur complement over the points, and the residuals'
+    robust scale.
+    """
+    r, J_frame, J_point = _residuals(tracks, _rotations(tracks.delta, a), p, X0, focal, jacobian=True)
+    H_gg, H_gp, H_pp, _, _ = _normal_blocks(tracks, _hessian_weights(r ** 2 / config.loss_scale_px ** 2), r,
+                                            J_frame, J_point)
     try:
+        S = H_gg - np.einsum("tij,tjk->ik", H_gp,
+                             np.linalg.solve(H_pp + 1e-12 * np.eye(3), H_gp.transpose(0, 2, 1)))
+        sigma2 = max(float(np.median(r ** 2) / 0.455), 1e-4)  # robust per-coordinate variance, px^2
         cov = np.linalg.inv(S) * sigma2
     except np.linalg.LinAlgError:
         return float("inf")
-    d = np.diag(cov)[:2]
+    # A turn w tilts the axis by w x a: its angles are w's components along two normals of a.
+    normals = np.column_stack(_basis(a))
+    d = np.diag(normals.T @ cov @ normals)
     return float(np.sqrt(np.max(d))) if np.all(d > 0) else float("inf")
+
+
+def _track_rms(tracks: _Tracks, a: FloatArray, p: FloatArray, focal: float,
+               max_iterations: int = 30) -> FloatArray:
+    """RMS residual (T,) px of each track's best point under a fixed rigid motion (a, p).
+
+    Every track's point by its own Levenberg-Marquardt from the linear triangulation, all tracks at once.
+    """
+    Rs = _rotations(tracks.delta, a)
+    X0 = _triangulate(tracks, Rs, p)
+    r, _, J = _residuals(tracks, Rs, p, X0, focal, jacobian=True)
+    cost = tracks.per_track(np.sum(r ** 2, axis=1))
+    damping = np.full(len(X0), 1e-3)
+    active = np.ones(len(X0), dtype=bool)
+    for _ in range(max_iterations):
+        H = tracks.per_track(np.einsum("nki,nkj->nij", J, J))
+        g = tracks.per_track(np.einsum("nki,nk->ni", J, r))
+        D = _damping_scale(H)
+        step = -np.linalg.solve(H + damping[:, None, None] * D[:, :, None] * np.eye(3), g[..., None])[..., 0]
+        X_new = np.where(active[:, None], X0 + step, X0)
+        r_new, _, J_new = _residuals(tracks, Rs, p, X_new, focal, jacobian=True)
+        cost_new = tracks.per_track(np.sum(r_new ** 2, axis=1))
+        better = active & (cost_new < cost)
+        converged = active & (np.abs(cost - cost_new) <= 1e-10 * cost)
+        active &= ~converged & (damping < 1e10)
+        damping = np.where(better, np.maximum(damping / 10.0, 1e-9), damping * 10.0)
+        X0 = np.where(better[:, None], X_new, X0)
+        cost = np.where(better, cost_new, cost)
+        keep = better[tracks.track]
+        r = np.where(keep[:, None], r_new, r)
+        J = np.where(keep[:, None, None], J_new, J)
+        if not active.any():
+            break
+    return np.sqrt(cost / np.diff(np.append(tracks.first, len(r))))
+
+
+def _fit_from_start(uv: list[FloatArray], deltas: list[FloatArray], a: FloatArray, p: FloatArray, focal: float,
+                    config: RigidAxisConfig) -> tuple[float, FloatArray, FloatArray, _Tracks, FloatArray, int]:
+    """Refine one start: fit, drop the tracks that do not move rigidly with the others, refit (3 rounds).
+
+    Returns the truncated cost over every track (a dropped track costs the threshold), a (3,), p (3,),
+    the tracks of the last fit and their points (T, 3), and how many tracks the fit keeps.
+    """
+    n = len(uv)
+    keep = np.ones(n, dtype=bool)
+    for _ in range(3):
+        idx = np.flatnonzero(keep)
+        tracks = _Tracks.of([uv[t] for t in idx], [deltas[t] for t in idx])
+        X0 = _triangulate(tracks, _rotations(tracks.delta, a), p)
+        a, p, X, rms = _refine(tracks, a, p, X0, focal, config)
+        if np.median(X[:, 2]) < 0:  # negating p and every point projects the same: keep them in front
+            p, X = -p, -X
+        track_rms = np.full(n, np.inf)
+        track_rms[idx] = rms
+        new_keep = track_rms <= config.max_track_rms_px
+        done = new_keep.sum() < config.min_tracks or np.array_equal(new_keep, keep)
+        keep = new_keep
+        if done:
+            break
+    cost = float(np.sum(np.minimum(track_rms, config.max_track_rms_px) ** 2))
+    return cost, a, p, tracks, X, int(keep.sum())
 
 
 def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
@@ -303,7 +543,8 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         focal: mean focal length, px (residuals and thresholds are in px).
         config: thresholds; ``RigidAxisConfig()`` if None.
         starts: more starting guesses (axis (3,) unit, a point of the axis (3,)), e.g. the conic
-            front end's; the fit keeps whichever start ends with the lowest truncated cost.
+            front end's, tried before the relative poses; the fit keeps whichever start ends with the
+            lowest truncated cost (and tries no more once one keeps ``enough_inlier_fraction``).
 
     Returns:
         The axis, the axis point at unit distance, per-track residuals and inliers.
@@ -334,35 +575,25 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         p = np.asarray(p, dtype=np.float64) - a * (a @ p)
         if np.linalg.norm(p) > 1e-9:
             guesses.append((a, p / np.linalg.norm(p)))
-    starts = guesses + _relative_pose(uv, frames, angles, focal, config)
-    if not starts:
+
+    def candidates():  # the given starts first, then the relative poses (only if those are not enough)
+        yield from guesses
+        yield from _relative_pose(uv, frames, angles, focal, config)
+
+    best = None
+    for a0, p0 in candidates():
+        fit = _fit_from_start(uv, deltas, a0, p0, focal, config)
+        if best is None or fit[0] < best[0]:
+            best = fit
+        if best[5] >= config.enough_inlier_fraction * n_fit:
+            break
+    if best is None:
         raise DegenerateMotionError(
             f"rigid front end: no two frames {config.min_pair_angle} rad apart share "
             f"{max(config.min_tracks, 8)} tracks")
-    best = None
-    for a0, p0 in starts:
-        keep = np.ones(n_fit, dtype=bool)
-        for _ in range(3):  # fit, drop the inconsistent tracks, refit
-            idx = np.flatnonzero(keep)
-            X0 = np.array([_triangulate(uv[t], deltas[t], a0, p0) for t in idx])
-            a, p, X, rms, axis_std = _refine([uv[t] for t in idx], [deltas[t] for t in idx], a0, p0, X0,
-                                             focal, config)
-            if np.median(X[:, 2]) < 0:  # negating p and every point projects the same: keep them in front
-                p = -p
-            track_rms = np.full(n_fit, np.inf)
-            track_rms[idx] = rms
-            new_keep = track_rms <= config.max_track_rms_px
-            a0, p0 = a, p
-            if new_keep.sum() < config.min_tracks or np.array_equal(new_keep, keep):
-                keep = new_keep
-                break
-            keep = new_keep
-        # Compare starts by a truncated cost over every track (a dropped track costs the threshold).
-        cost = float(np.sum(np.minimum(track_rms, config.max_track_rms_px) ** 2))
-        if best is None or cost < best[0]:
-            best = (cost, a0, p0, axis_std, track_rms, keep)
-    _, a, p, axis_std, _, _ = best
-    track_rms = np.array([_track_rms(u, d, a, p, focal) for u, d in zip(all_uv, all_deltas, strict=True)])
+    _, a, p, tracks, X, _ = best
+    axis_std = _axis_std(tracks, a, p, X, focal, config)
+    track_rms = _track_rms(_Tracks.of(all_uv, all_deltas), a, p, focal)
     keep = track_rms <= config.max_track_rms_px
     n_in, n_need = int(keep.sum()), max(config.min_tracks, int(np.ceil(config.min_inlier_fraction * L)))
     if n_in < n_need:

@@ -6,11 +6,25 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from solver.camera import normalized_from_pixels
 from solver.errors import DegenerateMotionError, InvalidInputError
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
-from solver.rigid_axis import RigidAxisConfig, geometry_from_rigid_fit, rigid_axis_of_motion
+from solver.rigid_axis import (
+    RigidAxisConfig,
+    _ArrowSystem,
+    _refine,
+    _residuals,
+    _rotations,
+    _track_rms,
+    _Tracks,
+    _triangulate,
+    _turn,
+    geometry_from_rigid_fit,
+    rigid_axis_of_motion,
+)
 
 K = np.array([[1380.0, 0.0, 960.0], [0.0, 1380.0, 540.0], [0.0, 0.0, 1.0]])
 CAMERA = CameraIntrinsics(K=K, dist=np.zeros(5), width=1920, height=1080)
@@ -108,3 +122,104 @@ def test_config_is_checked():
         RigidAxisConfig(min_tracks=3)
     with pytest.raises(InvalidInputError):
         RigidAxisConfig(max_track_rms_px=0.0)
+
+
+def _normalized_tracks(obs: MotionObservation):
+    uv = [normalized_from_pixels(t.pixels, CAMERA) for t in obs.tracks]
+    return _Tracks.of(uv, [t.delta for t in obs.tracks])
+
+
+def _line_and_points(seed: int, point_noise: float = 0.0):
+    """A scene's tracks in normalized coordinates, a line (a, p) a few degrees off and its points.
+
+    The points are triangulated under that line (as the fit starts), moved by ``point_noise`` m."""
+    rng = np.random.default_rng(seed)
+    point = np.array([0.05, -0.1, 1.1])
+    obs, axis = _scene(seed, rng.normal(size=3), point, n_tracks=8, n_frames=9)
+    tracks = _normalized_tracks(obs)
+    a = Rotation.from_rotvec(rng.normal(0.0, 0.05, 3)).apply(axis)
+    p = point - a * (a @ point)
+    p /= np.linalg.norm(p)
+    X0 = _triangulate(tracks, _rotations(tracks.delta, a), p)
+    return tracks, a, p, X0 + rng.normal(0.0, point_noise, X0.shape)
+
+
+def test_the_analytic_jacobian_matches_central_differences():
+    tracks, a, p, X0 = _line_and_points(11, point_noise=0.01)
+    focal = float(K[0, 0])
+    _, J_frame, J_point = _residuals(tracks, _rotations(tracks.delta, a), p, X0, focal, jacobian=True)
+    step = 1e-6
+    for k in range(3):  # the line's frame turned by +-step about each camera axis
+        turned = [_turn(sign * step * np.eye(3)[k], a, p) for sign in (1.0, -1.0)]
+        r_plus, r_minus = (_residuals(tracks, _rotations(tracks.delta, ak), pk, X0, focal) for ak, pk in turned)
+        np.testing.assert_allclose(J_frame[:, :, k], (r_plus - r_minus) / (2 * step), rtol=1e-5, atol=1e-3)
+    for k in range(3):  # every track's point moved at once: each frame sees only its own track's point
+        moved = [X0 + sign * step * np.eye(3)[k] for sign in (1.0, -1.0)]
+        r_plus, r_minus = (_residuals(tracks, _rotations(tracks.delta, a), p, X, focal) for X in moved)
+        np.testing.assert_allclose(J_point[:, :, k], (r_plus - r_minus) / (2 * step), rtol=1e-5, atol=1e-3)
+
+
+def test_the_block_trust_region_reaches_the_dense_ones_minimum():
+    """The Schur-complement trust region against scipy's (exact solver, dense Jacobian, same settings)."""
+    tracks, a0, p0, X0 = _line_and_points(12)
+    focal, config = float(K[0, 0]), RigidAxisConfig()
+
+    def residuals(x):
+        a, p = _turn(x[:3], a0, p0)
+        return _residuals(tracks, _rotations(tracks.delta, a), p, x[3:].reshape(-1, 3), focal).ravel()
+
+    dense = least_squares(residuals, np.concatenate([np.zeros(3), X0.ravel()]), tr_solver="exact",
+                          loss="cauchy", f_scale=config.loss_scale_px, x_scale="jac", max_nfev=100)
+    a_dense, _ = _turn(dense.x[:3], a0, p0)
+    a, p, X, rms = _refine(tracks, a0, p0, X0, focal, config)
+    r = _residuals(tracks, _rotations(tracks.delta, a), p, X, focal)
+    cost = 0.5 * config.loss_scale_px ** 2 * np.sum(np.log1p(r ** 2 / config.loss_scale_px ** 2))
+    assert _angle(a0, a_dense) > np.radians(1.0)  # the start is off: both moved
+    assert cost == pytest.approx(dense.cost, rel=1e-6)
+    assert _angle(a, a_dense) < 1e-5
+    squares = np.sum(r ** 2, axis=1)
+    np.testing.assert_allclose(rms, [np.sqrt(np.mean(squares[tracks.track == t])) for t in range(len(X))],
+                               rtol=1e-9)
+
+
+def test_the_batched_track_check_matches_one_track_at_a_time():
+    tracks, a, p, _ = _line_and_points(13)
+    focal = float(K[0, 0])
+    rms = _track_rms(tracks, a, p, focal)
+    Rs = _rotations(tracks.delta, a)
+    for t in range(len(rms)):
+        rows = tracks.track == t
+        one = _Tracks.of([tracks.uv[rows]], [tracks.delta[rows]])
+
+        def residuals(X, one=one, rows=rows):
+            return _residuals(one, Rs[rows], p, X[None], focal).ravel()
+
+        alone = least_squares(residuals, np.array([0.0, 0.0, 1.0]) + p, method="lm", xtol=1e-14, ftol=1e-14)
+        assert rms[t] == pytest.approx(np.sqrt(2.0 * np.mean(alone.fun ** 2)), rel=1e-6, abs=1e-9)
+
+
+@pytest.mark.parametrize("alpha", [0.0, 0.5])
+def test_the_arrow_system_solves_the_assembled_normal_equations(alpha):
+    rng = np.random.default_rng(14)
+    n_tracks = 5
+    J = rng.normal(size=(40, 3 + 3 * n_tracks))
+    for t in range(n_tracks):  # each track's point touches its own 8 rows only
+        rows = np.ones(40, dtype=bool)
+        rows[8 * t:8 * t + 8] = False
+        J[rows, 3 + 3 * t:6 + 3 * t] = 0.0
+    H = J.T @ J
+    blocks = [H[3 + 3 * t:6 + 3 * t, 3 + 3 * t:6 + 3 * t] for t in range(n_tracks)]
+    system = _ArrowSystem(H[:3, :3], np.stack([H[:3, 3 + 3 * t:6 + 3 * t] for t in range(n_tracks)]),
+                          np.stack(blocks), J.shape[0])
+    assert system.full_rank
+    b = rng.normal(size=3 + 3 * n_tracks)
+    x_g, x_p = system.solve(alpha, b[:3], b[3:].reshape(-1, 3))
+    np.testing.assert_allclose(np.concatenate([x_g, x_p.ravel()]),
+                               np.linalg.solve(H + alpha * np.eye(H.shape[0]), b), rtol=1e-9, atol=1e-12)
+
+
+def test_the_search_over_starts_is_checked():
+    with pytest.raises(InvalidInputError, match="enough_inlier_fraction"):
+        RigidAxisConfig(enough_inlier_fraction=0.0)
+    with pytest.raises(InvalidInputError, match="enough_inlier_fraction"):
+        RigidAxisConfig(enough_inlier_fraction=1.5)
