@@ -68,9 +68,14 @@ class CalibratorConfig:
         rigid_axis: the rigid front end (``solver.rigid_axis``): each motion's axis from the rigid
             motion of all its tracks by the known angles, and the tracks that do not move rigidly
             (sliding on silhouettes, highlights, drift) dropped before the bundle adjustment. Its
-            axis is used when it has one, else the conics'; None (the default for now: on the
-            recordings measured so far it helps on realistic images, not on painted ones, and costs
-            several seconds per motion): the paper's conic front end only.
+            axis is used when it has one, else the conics'; None: the paper's conic front end only.
+        rigid_always: run the rigid front end on every motion; False (the default): only on the
+            motions to which the conics give no axis. Measured on rendered 12-motion 1080p Panda
+            recordings, always-on helped on realistic images (6.28e-3 rad / 3.17 mm -> 4.87e-3 /
+            2.33 mm) but not on clean painted ones (2.78e-4 / 0.15 mm -> 3.33e-4 / 0.33 mm) and cost
+            3-5x the calibration time; where the conics fail it is the only source of an axis (a
+            realistic recording with one conic axis in 12 motions gave no pose without it and
+            8.1e-3 rad / 9.0 mm, 1-sigma 10 mm, with it).
         refinement: bundle adjustment.
         convergence: the sliding-window monitor.
         refine: run the bundle adjustment (off: the paper's linear method only).
@@ -95,14 +100,20 @@ class CalibratorConfig:
             along which the tracks of every motion, with an axis or not, can fix it). Not when the
             adjustment ran from the linear pose and its covariance was too wide: no start changes that.
             On two realistic 12-motion 1080p Panda recordings (0-2 axes by motion 5) the first pose
-            comes at motion 6 instead of 9 and at 3 instead of 12.
+            comes at motion 6 instead of 9 and at 3 instead of 12. Off by default: every later update
+            starts from the previous refined pose, and a rough early family pose can keep the chain in
+            a worse minimum; on a 25-motion 960x540 clean painted episode (benchmark pose 0, seed 0) the
+            final pose was not usable with it (1-sigma 4.5 and 5.3 mm, two tracker settings) and usable
+            without it (2.8 mm). To turn it on, the adjustment from the linear pose should also be tried
+            once there is one, keeping the start whose result explains the tracks better.
         family_distances: m; the family is sampled where the motions' joints lie between these
             distances from the camera (log-spaced)...
         family_samples: ... at this many distances (each can give two members, both in front).
     """
 
     motion: MotionConfig = field(default_factory=MotionConfig)
-    rigid_axis: RigidAxisConfig | None = None
+    rigid_axis: RigidAxisConfig | None = field(default_factory=RigidAxisConfig)
+    rigid_always: bool = False
     refinement: RefinementConfig = field(default_factory=RefinementConfig)
     convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
     refine: bool = True
@@ -115,7 +126,7 @@ class CalibratorConfig:
     max_std_rotation: float = 0.05
     max_std_translation: float = 0.05
     seed: int = 0
-    family_start: bool = True
+    family_start: bool = False
     family_distances: tuple[float, float] = (0.3, 5.0)
     family_samples: int = 12
 
@@ -143,7 +154,8 @@ class MotionReport:
         n_inlier_tracks: tracks the bundle adjustment kept.
         front_end: which front end gave the axis: "rigid", "conics" or "" (none).
         conics: "" or why the conic front end gave no axis.
-        rigid: "" or why the rigid front end gave no axis (also "" when it is off).
+        rigid: "" or why the rigid front end gave no axis (also "" when it did not run: off, or the
+            conics gave an axis and ``CalibratorConfig.rigid_always`` is False).
         n_inconsistent_tracks: tracks the rigid front end dropped (they do not move rigidly with the
             others by the known angles).
     """
@@ -349,7 +361,7 @@ class Calibrator:
             except DegenerateMotionError as exc:
                 geometry = None
                 report.conics = str(exc)
-            if self.config.rigid_axis is not None:
+            if self.config.rigid_axis is not None and (geometry is None or self.config.rigid_always):
                 moving, geometry = self._rigid_front_end(obs, moving, geometry, report)
             if geometry is None:
                 report.stage_one = "; ".join(r for r in (report.conics, report.rigid) if r)

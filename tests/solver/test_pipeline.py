@@ -82,7 +82,7 @@ def test_the_rigid_front_end_gives_axes_and_drops_outlier_tracks():
     T = sample_camera_pose(rng)
     scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.3, outlier_fraction=0.1, tracks_per_motion=25),
                            rng)
-    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(rigid_axis=RigidAxisConfig()))
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(rigid_axis=RigidAxisConfig(), rigid_always=True))
     for _ in range(6):
         cal.add_motion(scene.random_motion(rng).observation)
     fronts = [r.front_end for r in cal.reports]
@@ -132,7 +132,7 @@ def test_shoulder_joints_alone_never_give_a_pose():
     T = sample_camera_pose(rng)
     scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.0, outlier_fraction=0.0,
                                                         tracks_per_motion=20), rng)
-    cal = Calibrator(K, PANDA.axis_and_point)
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(family_start=True))  # the start must not invent depth
     for _ in range(8):
         cal.add_motion(scene.random_motion(rng, joints=(0, 1, 2)).observation)
     assert cal.state.T_camera_base is None
@@ -150,7 +150,10 @@ def test_shoulder_joints_alone_never_give_a_pose():
 
 
 def _stage_one_for(monkeypatch, n_axes):
-    """Let stage one give an axis to the first ``n_axes`` motions where it finds one, and none after."""
+    """Let the conics give an axis to the first ``n_axes`` motions where they find one, and none after.
+
+    With the rigid front end off (``CalibratorConfig(rigid_axis=None)``) that is all of stage one.
+    """
     real = pipeline.estimate_motion_geometry
     found = []
 
@@ -172,7 +175,7 @@ def test_two_axes_start_the_bundle_adjustment_from_the_pose_family(monkeypatch):
     T = sample_camera_pose(rng)
     scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=20),
                            rng)
-    cal = Calibrator(K, PANDA.axis_and_point)
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(rigid_axis=None, family_start=True))
     first = None
     observations = [scene.random_motion(rng).observation for _ in range(7)]
     for obs in observations:
@@ -211,7 +214,7 @@ def test_one_axis_gives_no_pose_and_says_why(monkeypatch):
     T = sample_camera_pose(rng)
     scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=15),
                            rng)
-    cal = Calibrator(K, PANDA.axis_and_point)
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(rigid_axis=None, family_start=True))
     for _ in range(4):
         cal.add_motion(scene.random_motion(rng).observation)
     s = cal.state
@@ -225,7 +228,7 @@ def test_parallel_axes_give_no_family_start():
     T = sample_camera_pose(rng)
     scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.0, outlier_fraction=0.0, tracks_per_motion=12),
                            rng)
-    cal = Calibrator(K, PANDA.axis_and_point)
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(family_start=True))
     for _ in range(2):  # the base joint's axis is the base z axis at every configuration
         cal.add_motion(scene.random_motion(rng, joints=(0,)).observation)
     assert cal.motion_geometry(0) is not None and cal.motion_geometry(1) is not None
