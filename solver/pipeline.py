@@ -69,13 +69,14 @@ class CalibratorConfig:
             motion of all its tracks by the known angles, and the tracks that do not move rigidly
             (sliding on silhouettes, highlights, drift) dropped before the bundle adjustment. Its
             axis is used when it has one, else the conics'; None: the paper's conic front end only.
-        rigid_always: run the rigid front end on every motion; False (the default): only on the
-            motions to which the conics give no axis. Measured on rendered 12-motion 1080p Panda
-            recordings, always-on helped on realistic images (6.28e-3 rad / 3.17 mm -> 4.87e-3 /
-            2.33 mm) but not on clean painted ones (2.78e-4 / 0.15 mm -> 3.33e-4 / 0.33 mm) and cost
-            3-5x the calibration time; where the conics fail it is the only source of an axis (a
-            realistic recording with one conic axis in 12 motions gave no pose without it and
-            8.1e-3 rad / 9.0 mm, 1-sigma 10 mm, with it).
+        rigid_always: run the rigid front end on every motion (the default); False: only on the
+            motions to which the conics give no axis. Measured with ``calibrate_recording`` on
+            rendered 12-motion 1080p Panda recordings (conics only / rigid where the conics fail /
+            rigid on every motion): realistic real0 3.67e-3 rad / 2.50 mm, 3.72e-3 / 2.62 mm,
+            7.96e-4 / 0.89 mm; as-shipped ship1 3.24e-3 / 2.83, 3.30e-3 / 3.09, 8.78e-4 / 3.50 mm;
+            realistic real2 no pose in all three; clean painted paint0 1.90e-4 / 0.11 mm (conics
+            only) against 4.84e-4 / 0.32 mm (every motion): it wins on realistic images, where most
+            tracks slide, and costs some accuracy on painted ones, where nearly all are rigid.
         refinement: bundle adjustment.
         convergence: the sliding-window monitor.
         refine: run the bundle adjustment (off: the paper's linear method only).
@@ -113,7 +114,7 @@ class CalibratorConfig:
 
     motion: MotionConfig = field(default_factory=MotionConfig)
     rigid_axis: RigidAxisConfig | None = field(default_factory=RigidAxisConfig)
-    rigid_always: bool = False
+    rigid_always: bool = True
     refinement: RefinementConfig = field(default_factory=RefinementConfig)
     convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
     refine: bool = True
