@@ -1,4 +1,7 @@
-"""The array type aliases every package uses: defined once, here (the bottom of the dependency chain)."""
+"""Array type aliases and even thinning, which every package uses: defined once, here (the bottom).
+
+This module sits at the bottom of the dependency chain.
+"""
 
 from __future__ import annotations
 
@@ -14,4 +17,14 @@ MaskArray = NDArray[np.bool_]
 #: Integer index arrays (body ids, geom ids).
 IndexArray = NDArray[np.int64]
 
-__all__ = ["FloatArray", "ImageArray", "IndexArray", "MaskArray"]
+
+
+def evenly_spaced(n: int, k: int) -> IndexArray:
+    """(m,) int64, sorted and distinct: at most ``k`` indices into ``range(n)``, evenly spread, first and last included.
+
+    ``k >= n`` gives every index; ``n == 0`` none.
+    """
+    return np.unique(np.linspace(0, n - 1, min(n, k)).round().astype(np.int64))
+
+
+__all__ = ["FloatArray", "ImageArray", "IndexArray", "MaskArray", "evenly_spaced"]

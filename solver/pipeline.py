@@ -22,7 +22,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from solver.arrays import FloatArray
+from solver.arrays import FloatArray, evenly_spaced
 from solver.calibration import (
     MIN_OBSERVABILITY,
     AxisCorrespondence,
@@ -371,8 +371,7 @@ class Calibrator:
                 moving = [moving[k] for k in sorted(pick)]
             tracks = []
             for t in moving:
-                n_keep = min(len(t), self.config.max_frames_per_track)
-                idx = np.unique(np.linspace(0, len(t) - 1, n_keep).round().astype(int))
+                idx = evenly_spaced(len(t), self.config.max_frames_per_track)
                 tracks.append((normalized_from_pixels(t.pixels[idx], self.intrinsics), t.delta[idx]))
             self._motions.append(_Motion(obs, axis, point, geometry, tracks))
         if update:
@@ -556,11 +555,10 @@ class Calibrator:
         motions = []
         for k in live:
             m = self._motions[k]
-            picks = np.unique(np.linspace(0, len(m.tracks) - 1, min(len(m.tracks), FAMILY_SCREEN_TRACKS)).round())
             tracks = []
-            for uv, delta in (m.tracks[int(j)] for j in picks):
-                frames = np.unique(np.linspace(0, len(delta) - 1, min(len(delta), FAMILY_SCREEN_FRAMES)).round())
-                tracks.append((uv[frames.astype(int)], delta[frames.astype(int)]))
+            for uv, delta in (m.tracks[j] for j in evenly_spaced(len(m.tracks), FAMILY_SCREEN_TRACKS)):
+                frames = evenly_spaced(len(delta), FAMILY_SCREEN_FRAMES)
+                tracks.append((uv[frames], delta[frames]))
             motions.append((m.axis_base, m.point_base, tracks))
         return build_track_set(motions, self.intrinsics.focal, self.config.refinement.min_track_frames)
 

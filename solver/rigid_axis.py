@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from solver.arrays import FloatArray
+from solver.arrays import FloatArray, evenly_spaced
 from solver.camera import normalized_from_pixels
 from solver.errors import DegenerateMotionError, InvalidInputError
 from solver.motion import MotionGeometry
@@ -561,9 +561,8 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         raise DegenerateMotionError(f"rigid front end: {L} tracks (need {config.min_tracks})")
     # The fit: tracks spread over the list (not the longest: silhouette points that slide live long),
     # each subsampled evenly; every track is checked against the fit after.
-    fit_set = sorted(set(np.linspace(0, L - 1, min(L, config.max_fit_tracks)).round().astype(int).tolist()))
-    picks = [np.unique(np.linspace(0, len(deltas[t]) - 1, min(len(deltas[t]), config.max_fit_frames)).round()
-                       .astype(int)) for t in fit_set]
+    fit_set = evenly_spaced(L, config.max_fit_tracks).tolist()
+    picks = [evenly_spaced(len(deltas[t]), config.max_fit_frames) for t in fit_set]
     all_uv, all_deltas = uv, deltas
     uv = [all_uv[t][k] for t, k in zip(fit_set, picks, strict=True)]
     deltas = [all_deltas[t][k] for t, k in zip(fit_set, picks, strict=True)]

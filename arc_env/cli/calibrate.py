@@ -26,6 +26,7 @@ from arc_env.robot.exports import check_frame_name
 from arc_env.robot.overlay import RobotProjector, draw_overlay
 from arc_env.robot.recording import read_recording
 from arc_env.robot.session import CalibrationRun, UsableCriteria, calibrate_recording
+from solver.arrays import evenly_spaced
 from solver.errors import InvalidInputError
 from solver.frames import check_transform
 
@@ -41,8 +42,7 @@ def render_overlays(run: CalibrationRun, out_dir: Path, n_motions: int = 4) -> d
     assert rec is not None and T_camera_base is not None
     projector = RobotProjector(rec.robot, rec.intrinsics)
     accepted = [m for m, d in zip(rec.motions, run.diagnostics, strict=True) if d.accepted]
-    pick = [accepted[k] for k in np.unique(np.linspace(0, len(accepted) - 1, min(n_motions, len(accepted)))
-                                           .round().astype(int))] if accepted else []
+    pick = [accepted[k] for k in evenly_spaced(len(accepted), n_motions)]
     files: dict[Path, bytes] = {}
     for m in pick:
         k = m.n_frames // 2

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from planners.context import PlanningContext, SceneRenderer
 from planners.informed.config import InformedPlannerConfig
-from solver.arrays import FloatArray, IndexArray
+from solver.arrays import FloatArray, IndexArray, evenly_spaced
 from solver.camera import normalized_from_pixels
 from solver.refinement import build_track_set, pose_information
 
@@ -108,7 +108,7 @@ class InformationModel:
                               if ok[k].sum() >= 3 else 0.0 for k in (0, -1)]))
         renderer = self.context.renderer
         if occlusion and renderer is not None:
-            checked = np.unique(np.linspace(0, len(deltas) - 1, c.occlusion_frames).round().astype(int))
+            checked = evenly_spaced(len(deltas), c.occlusion_frames)
             seen = np.stack([self.visible_points(renderer, q, joint, deltas[k], body, local, T_camera_base, uv[k])
                              for k in checked])
             nearest = np.abs(np.arange(len(deltas))[:, None] - checked[None, :]).argmin(axis=1)
