@@ -1,24 +1,18 @@
 """scripts/bench_episode.py: the realism issue's figures from fake records, and the --json layout."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from arc_env.bench.episodes import FALSE_CONVERGENCE_SIGMAS, falsely_converged, front_end_axes, std_maxima
 from solver.pipeline import CalibrationState, MotionReport
-
-SCRIPT = Path(__file__).resolve().parents[3] / "scripts" / "bench_episode.py"
+from tests.support.scripts import load_script
 
 
 @pytest.fixture(scope="module")
 def script():
-    spec = importlib.util.spec_from_file_location("bench_episode", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("bench_episode")
 
 
 def _state(converged: bool, std: list[float] | None) -> CalibrationState:
