@@ -253,6 +253,18 @@ def primitive_surface(kind: int, size: FloatArray, rng: np.random.Generator, n: 
     return None
 
 
+
+def geom_vertices(model: mujoco.MjModel, geom: int) -> FloatArray | None:
+    """A geom's points in its own frame, (P, 3) metres; None for a type without any.
+
+    A mesh's vertices, or a primitive's surface samples (seeded by the geom id: the same every call).
+    """
+    if model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_MESH:
+        mid = model.geom_dataid[geom]
+        return model.mesh_vert[model.mesh_vertadr[mid]:model.mesh_vertadr[mid] + model.mesh_vertnum[mid]].astype(
+            np.float64)
+    return primitive_surface(int(model.geom_type[geom]), model.geom_size[geom], np.random.default_rng(geom))
+
 def subtree(model: mujoco.MjModel, root: int) -> list[int]:
     """Body ids of ``root`` and all its descendants (every body when root is the world, 0)."""
     return [b for b in range(model.nbody) if _is_descendant(model, b, root)]
@@ -461,13 +473,9 @@ class RobotModel:
         for g in range(m.ngeom):
             if m.geom_bodyid[g] not in moving or m.geom_group[g] > 2:
                 continue
-            if m.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
-                mid = m.geom_dataid[g]
-                verts = m.mesh_vert[m.mesh_vertadr[mid]:m.mesh_vertadr[mid] + m.mesh_vertnum[mid]]
-            else:
-                verts = primitive_surface(int(m.geom_type[g]), m.geom_size[g], np.random.default_rng(g))
-                if verts is None:
-                    continue
+            verts = geom_vertices(m, g)
+            if verts is None:
+                continue
             rot = np.empty(9)
             mujoco.mju_quat2Mat(rot, m.geom_quat[g])
             local = verts @ rot.reshape(3, 3).T + m.geom_pos[g]

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from arc_env.robot.model import RobotModel, primitive_surface
+from arc_env.robot.model import RobotModel, geom_vertices
 from arc_env.sim.marker_board import BOARD_BODY
 from solver.arrays import FloatArray, ImageArray
 
@@ -246,13 +246,9 @@ def _pattern_material(spec: mujoco.MjSpec, model: mujoco.MjModel, geom: int, pat
 
 def _geom_points(m: mujoco.MjModel, d: mujoco.MjData, geom: int) -> FloatArray:
     """A drawn geom's vertices (mesh) or surface samples (primitive) in the world frame, (P, 3) m."""
-    if m.geom_type[geom] == mujoco.mjtGeom.mjGEOM_MESH:
-        mid = m.geom_dataid[geom]
-        local = m.mesh_vert[m.mesh_vertadr[mid]:m.mesh_vertadr[mid] + m.mesh_vertnum[mid]].astype(np.float64)
-    else:
-        local = primitive_surface(int(m.geom_type[geom]), m.geom_size[geom], np.random.default_rng(geom))
-        if local is None:
-            return np.zeros((0, 3))
+    local = geom_vertices(m, geom)
+    if local is None:
+        return np.zeros((0, 3))
     return local @ d.geom_xmat[geom].reshape(3, 3).T + d.geom_xpos[geom]
 
 
