@@ -531,6 +531,7 @@ __all__ = [
     "RobotSource",
     "attach_robot",
     "compile_spec",
+    "geom_vertices",
     "panda_mjcf_dir",
     "primitive_surface",
     "quiet_attach",
