@@ -567,3 +567,12 @@ def result_dict(run: FinishedCalibration, edge: ParentChild, exports: Mapping[st
         "exports": {k: p.name for k, p in exports.items()},
         "seconds": {k: round(v, 2) for k, v in run.seconds.items()},
     }
+
+
+__all__ = ["DEFAULT_CALIB_NAME", "DEFAULT_CAMERA_FRAME", "EASY_HANDEYE2_CALIBRATIONS", "EXECUTABLE_EXPORTS",
+           "EXPORT_SUFFIXES", "RESULT_FORMAT", "ROS_BASE_FRAMES", "R_LINK_OPTICAL", "XACRO_MACRO", "XACRO_NS",
+           "FinishedCalibration", "MotionRow", "ParentChild", "calib_name_from", "check_calib_name",
+           "check_frame_name", "easy_handeye2_calib", "easy_handeye2_install_path", "export_paths", "export_texts",
+           "frames_dict", "launch_file", "result_dict", "ros_base_frame", "static_transform_publisher_args",
+           "static_transform_publisher_command", "tf_script", "urdf_joint", "urdf_robot", "write_files_atomic",
+           "xacro_macro"]
