@@ -6,6 +6,7 @@
 * ``record`` (``arc_env.cli.record``): a simulated episode written as a recording.
 * ``calibrate`` (``arc_env.cli.calibrate``): a recording in, a calibration and ROS exports out (no simulator).
 * ``run`` (``arc_env.cli.run``): online calibration, a planner driving a ``RobotDriver``.
+* ``export`` (``arc_env.cli.export``): rewrite the ROS exports of an existing result (no recalibration).
 
 Each subcommand's module is imported only when it runs, so ``calibrate`` never imports the simulator.
 """
@@ -95,6 +96,10 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--resume", metavar="DIR",
                      help="continue from the motions of an earlier run's recording (it is read, never written)")
     add_result_arguments(run)
+    export = sub.add_parser("export", help="rewrite the ROS exports of a result.json without recalibrating")
+    from arc_env.cli.export import add_arguments as add_export_arguments
+
+    add_export_arguments(export)
     args = parser.parse_args(argv)
     if args.command == "demo" and args.synthetic and args.planner != "random":
         print("arc-calib: --planner informed needs the MuJoCo scene (drop --synthetic)", file=sys.stderr)
@@ -112,12 +117,16 @@ def main(argv: list[str] | None = None) -> int:
             from arc_env.cli.run import run_online
 
             return run_online(args)
+        if args.command == "export":
+            from arc_env.cli.export import run_export
+
+            return run_export(args)
         from arc_env.cli.calibrate import run_calibrate
 
         return run_calibrate(args)
     except InvalidInputError as exc:
         print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
-        return 2 if args.command in ("calibrate", "record", "run") else 1
+        return 2 if args.command in ("calibrate", "record", "run", "export") else 1
     except ArcCalibError as exc:
         print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
         return 1

@@ -22,7 +22,7 @@ import numpy as np
 
 from arc_env.cli.progress import Progress
 from arc_env.cli.result import add_result_arguments, check_frame_names, check_outputs, finish
-from arc_env.robot.exports import check_frame_name
+from arc_env.robot.exports import calib_name_from, check_frame_name, easy_handeye2_install_path, ros_base_frame
 from arc_env.robot.overlay import RobotProjector, draw_overlay
 from arc_env.robot.recording import read_recording
 from arc_env.robot.session import CalibrationRun, UsableCriteria, calibrate_recording
@@ -70,13 +70,16 @@ def run_calibrate(args: argparse.Namespace) -> int:
     """``arc-calib calibrate`` from parsed arguments; returns the exit code (0 only for a usable result)."""
     UsableCriteria(min_motions=args.min_motions, max_std_deg=args.max_std_deg, max_std_mm=args.max_std_mm)
     inputs = [Path(args.recording)] + ([Path(args.ground_truth)] if args.ground_truth else [])
-    check_outputs(Path(args.output), inputs, args.force, Path(args.overlay) if args.overlay else None)
     check_frame_names(args)
+    calib_name = args.calib_name or calib_name_from(Path(args.recording).resolve().name)
+    check_outputs(Path(args.output), inputs, args.force, Path(args.overlay) if args.overlay else None,
+                  installed_calib=easy_handeye2_install_path(calib_name) if args.install_calib else None)
     truth = _read_ground_truth(Path(args.ground_truth)) if args.ground_truth else None
     started = time.perf_counter()
     recording = read_recording(args.recording)
+    base_frame = args.base_frame or ros_base_frame(recording.base_body)
     if args.base_frame is None:
-        check_frame_name(recording.base_body, f"{recording.path / 'robot.json'}: the base body (or give --base-frame)")
+        check_frame_name(base_frame, f"{recording.path / 'robot.json'}: the base body (or give --base-frame)")
     usable = recording.usable
     print(f"{recording.path}: {len(recording.motions)} motions ({len(usable)} with one moving joint), camera "
           f"{recording.intrinsics.width}x{recording.intrinsics.height}"
@@ -89,7 +92,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     with Progress(max(len(recording.motions), 1), "motions", enabled=not args.quiet) as bar:
         run = calibrate_recording(recording, on_motion=bar.step)
     overlays = (lambda: render_overlays(run, Path(args.overlay))) if args.overlay else None
-    return finish(run, args, args.base_frame or recording.base_body, overlays, truth, started)
+    return finish(run, args, base_frame, overlays, truth, started, calib_name)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

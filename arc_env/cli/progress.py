@@ -1,30 +1,25 @@
-"""Progress of long work (recording, calibrating, episodes) on the terminal.
+"""Progress of long work (recording, calibrating, episodes) on stderr, drawn by tqdm.
 
-In a terminal the progress is one bar, rewritten in place; in a log, a pipe or CI it is one line
-per step, so that the log keeps every step. Either way it goes to stderr by default, leaving stdout
-to results.
+In a terminal the progress is tqdm's bar, rewritten in place, with the latest step's status after it; in
+a log, a pipe or CI it is one line per step (tqdm's count, elapsed and remaining time, then the status),
+so that the log keeps every step. Either way it goes to stderr by default, leaving stdout to results
+(tables, ``--json -`` style output of callers).
 """
 
 from __future__ import annotations
 
-import shutil
 import sys
 import time
 from typing import TextIO
 
+from tqdm import tqdm
+
 from solver.errors import InvalidInputError
 
-#: Characters of the bar itself.
-BAR_WIDTH = 24
-
-
-def _clock(seconds: float) -> str:
-    """``seconds`` as ``42 s``, ``3:05`` or ``1:02:09``."""
-    s = int(round(seconds))
-    if s < 60:
-        return f"{s} s"
-    h, rest = divmod(s, 3600)
-    return f"{h}:{rest // 60:02d}:{rest % 60:02d}" if h else f"{rest // 60}:{rest % 60:02d}"
+#: A log line: ``3/25 motions, 00:12<01:30, joint 4: 40 tracks`` (tqdm's fields).
+LINE_FORMAT = "{n_fmt}/{total_fmt} {unit}, {elapsed}<{remaining}{postfix}"
+#: The terminal bar: ``12%|##   | 3/25 motions [00:12<01:30, joint 4: 40 tracks]``.
+BAR_FORMAT = "{percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} {unit} [{elapsed}<{remaining}{postfix}]"
 
 
 class Progress:
@@ -40,7 +35,7 @@ class Progress:
     Args:
         total: steps expected; the bar is full at ``total``.
         unit: what a step is, for the count (``3/25 motions``).
-        stream: where to write (default stderr); a bar when it is a terminal, else lines.
+        stream: where to write (default stderr); tqdm's bar when it is a terminal, else lines.
         enabled: False writes nothing (``--quiet``).
     """
 
@@ -53,9 +48,10 @@ class Progress:
         self.done = 0
         self.stream = stream if stream is not None else sys.stderr
         self.enabled = enabled
-        self.bar = enabled and bool(getattr(self.stream, "isatty", lambda: False)())
+        terminal = enabled and bool(getattr(self.stream, "isatty", lambda: False)())
+        self.bar: tqdm | None = (tqdm(total=total, unit=unit, file=self.stream, dynamic_ncols=True, leave=True,
+                                      mininterval=0.0, bar_format=BAR_FORMAT) if terminal else None)
         self.started = time.perf_counter()
-        self._drawn = 0  # characters of the bar now on the line (0: none)
 
     def __enter__(self) -> Progress:
         return self
@@ -64,38 +60,30 @@ class Progress:
         self.close()
 
     def line(self, status: str = "") -> str:
-        """The text of the current state, without the bar: ``3/25 motions, 12 s, ~1:28 left: status``."""
-        elapsed = time.perf_counter() - self.started
-        text = f"{self.done}/{self.total} {self.unit}, {_clock(elapsed)}"
-        if 0 < self.done < self.total:
-            text += f", ~{_clock(elapsed / self.done * (self.total - self.done))} left"
-        return f"{text}: {status}" if status else text
+        """The text of the current state: ``3/25 motions, 00:12<01:30, status`` (tqdm's meter)."""
+        return tqdm.format_meter(self.done, self.total, time.perf_counter() - self.started, unit=self.unit,
+                                 postfix=status or None, bar_format=LINE_FORMAT)
 
     def step(self, status: str = "", n: int = 1) -> None:
         """Count ``n`` more steps done and show the new state with ``status``."""
-        self.done = min(self.done + n, self.total)
+        n = min(n, self.total - self.done)
+        self.done += n
         if not self.enabled:
             return
-        if not self.bar:
+        if self.bar is None:
             print(self.line(status), file=self.stream, flush=True)
             return
-        filled = BAR_WIDTH * self.done // self.total
-        text = f"[{'#' * filled}{'.' * (BAR_WIDTH - filled)}] {self.line(status)}"
-        text = text[:max(shutil.get_terminal_size().columns - 1, BAR_WIDTH + 2)]
-        self.stream.write("\r" + text.ljust(self._drawn))
-        self.stream.flush()
-        self._drawn = len(text)
+        self.bar.set_postfix_str(status, refresh=False)
+        self.bar.update(n)
+        self.bar.refresh()
 
     def clear(self) -> None:
         """Erase the bar so that other output can be printed on a clean line (``step`` redraws it)."""
-        if self._drawn:
-            self.stream.write("\r" + " " * self._drawn + "\r")
-            self.stream.flush()
-            self._drawn = 0
+        if self.bar is not None:
+            self.bar.clear()
 
     def close(self) -> None:
         """End the bar's line (the bar stays on screen)."""
-        if self._drawn:
-            self.stream.write("\n")
-            self.stream.flush()
-            self._drawn = 0
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None

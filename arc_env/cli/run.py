@@ -28,7 +28,13 @@ import numpy as np
 from arc_env.cli.progress import Progress
 from arc_env.cli.result import check_frame_names, check_outputs, finish
 from arc_env.robot.driver import Sweep, load_driver
-from arc_env.robot.exports import check_frame_name
+from arc_env.robot.exports import (
+    DEFAULT_CALIB_NAME,
+    calib_name_from,
+    check_frame_name,
+    easy_handeye2_install_path,
+    ros_base_frame,
+)
 from arc_env.robot.recording import Recording, RecordingWriter, read_recording
 from arc_env.robot.session import (
     CalibrationRun,
@@ -51,16 +57,19 @@ from solver.errors import ArcCalibError, InvalidInputError
 def run_online(args: argparse.Namespace) -> int:
     """``arc-calib run`` from parsed arguments; returns the exit code (0 only for a usable result)."""
     resume = Path(args.resume) if getattr(args, "resume", None) else None
+    check_frame_names(args)
+    calib_name = args.calib_name or (calib_name_from(Path(args.record).resolve().name) if args.record
+                                     else DEFAULT_CALIB_NAME)
     check_outputs(Path(args.output), [resume] if resume else [], args.force,
-                  other_outputs=[Path(args.record)] if args.record else [])
+                  other_outputs=[Path(args.record)] if args.record else [],
+                  installed_calib=easy_handeye2_install_path(calib_name) if args.install_calib else None)
     if args.motions < 3:
         raise InvalidInputError("--motions must be >= 3")
-    check_frame_names(args)
     previous = read_recording(resume, min_motions=1) if resume else None
     driver = load_driver(args.driver)
+    base_frame = args.base_frame or ros_base_frame(driver.robot.base_body)
     if args.base_frame is None:
-        check_frame_name(driver.robot.base_body, f"--driver {args.driver}: the robot's base body "
-                                                 "(or give --base-frame)")
+        check_frame_name(base_frame, f"--driver {args.driver}: the robot's base body (or give --base-frame)")
     if previous is not None and tuple(previous.joint_names) != tuple(driver.joint_names):
         raise InvalidInputError(f"--resume {resume}: its joints {list(previous.joint_names)} are not the driver's "
                                 f"{list(driver.joint_names)}")
@@ -148,7 +157,7 @@ def run_online(args: argparse.Namespace) -> int:
     run.check_focal()
     run.seconds["total"] = time.perf_counter() - started
     truth = getattr(driver, "T_camera_base_true", None)  # simulated drivers only
-    return finish(run, args, args.base_frame or driver.robot.base_body, None, truth, started)
+    return finish(run, args, base_frame, None, truth, started, calib_name)
 
 
 class DriverFailure(ArcCalibError):

@@ -97,9 +97,26 @@ def test_a_hostile_base_body_in_the_robot_model_is_refused(rec, tmp_path, capsys
     _refused(rec, tmp_path / "out", capsys, 2, ("is not a valid ROS frame name", "robot.json"))
 
 
-@pytest.mark.parametrize("option", ["--base-frame", "--camera-frame"])
+@pytest.mark.parametrize("option", ["--base-frame", "--camera-frame", "--camera-link-frame"])
 def test_hostile_frame_options_are_refused_before_any_work(rec, tmp_path, capsys, option):
     _refused(rec, tmp_path / "out", capsys, 2, (option, "is not a valid ROS frame name"), option, HOSTILE)
+
+
+@pytest.mark.parametrize("name", [HOSTILE, "../../.bashrc", "-rf"])
+def test_hostile_calibration_names_are_refused_before_any_work(rec, tmp_path, capsys, name, monkeypatch):
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    _refused(rec, tmp_path / "out", capsys, 2, ("--calib-name", "is not a valid calibration name"),
+             f"--calib-name={name}", "--install-calib")
+    assert not (tmp_path / "home").exists()
+
+
+def test_an_installed_calibration_is_not_replaced_without_force(rec, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    installed = tmp_path / "home" / ".ros2" / "easy_handeye2" / "calibrations" / "rec.calib"
+    installed.parent.mkdir(parents=True)
+    installed.write_text("an earlier calibration\n")
+    _refused(rec, tmp_path / "out", capsys, 2, ("rec.calib: already exists; use --force",), "--install-calib")
+    assert installed.read_text() == "an earlier calibration\n"
 
 
 # -- outputs that would damage the input or an earlier result -----------------------------------

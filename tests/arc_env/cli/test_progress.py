@@ -1,10 +1,10 @@
-"""Progress: a bar rewritten in place in a terminal, one line per step in a log."""
+"""Progress: tqdm's bar rewritten in place in a terminal, one line per step in a log, always off stdout."""
 
 import io
 
 import pytest
 
-from arc_env.cli.progress import BAR_WIDTH, Progress, _clock
+from arc_env.cli.progress import Progress
 from solver.errors import ArcCalibError
 
 
@@ -20,23 +20,21 @@ def test_a_log_gets_one_line_per_step_with_the_count_and_status():
             progress.step(f"joint {joint}")
     lines = log.getvalue().splitlines()
     assert len(lines) == 3
-    assert lines[0].startswith("1/3 motions, ") and lines[0].endswith(": joint 1")
-    assert "left" in lines[1]  # an estimate of the time left while steps remain
-    assert lines[2].startswith("3/3 motions, ") and "left" not in lines[2]
+    assert lines[0].startswith("1/3 motions, 00:00<") and lines[0].endswith(", joint 1")
+    assert lines[2].startswith("3/3 motions, ") and lines[2].endswith("<00:00, joint 6")  # nothing left
     assert "\r" not in log.getvalue()
 
 
-def test_a_terminal_gets_one_bar_rewritten_in_place():
+def test_a_terminal_gets_one_tqdm_bar_rewritten_in_place():
     term = _Terminal()
     progress = Progress(4, "motions", stream=term)
     progress.step("joint 2")
     progress.step("a longer status than the first")
-    progress.step("short")  # padded so that no text of the longer line is left behind
+    progress.step("short")
     out = term.getvalue()
-    assert out.count("\r") == 3 and "\n" not in out
-    drawn = out.split("\r")
-    assert drawn[3].startswith("[" + "#" * (BAR_WIDTH * 3 // 4) + ".")
-    assert len(drawn[3]) >= len(drawn[2])
+    assert "\n" not in out and out.count("\r") >= 3  # redrawn on one line
+    last = out.split("\r")[-1]
+    assert "3/4" in last and "short" in last and "75%" in last
     progress.close()
     assert term.getvalue().endswith("\n") and term.getvalue().count("\n") == 1
 
@@ -44,12 +42,10 @@ def test_a_terminal_gets_one_bar_rewritten_in_place():
 def test_clear_erases_the_bar_before_other_output():
     term = _Terminal()
     progress = Progress(2, stream=term)
-    progress.step()
+    progress.step("x")
     progress.clear()
-    last = term.getvalue().split("\r")[-2]
-    assert last.strip() == "" and term.getvalue().endswith("\r")
-    progress.close()  # nothing drawn: no empty line
-    assert "\n" not in term.getvalue()
+    assert term.getvalue().split("\r")[-2].strip() == ""  # the bar's line is blanked
+    progress.close()
 
 
 def test_disabled_writes_nothing_but_still_counts():
@@ -58,6 +54,14 @@ def test_disabled_writes_nothing_but_still_counts():
         progress.step("x")
         progress.step("y")
     assert log.getvalue() == "" and progress.done == 2
+
+
+def test_progress_goes_to_stderr_never_stdout(capsys):
+    with Progress(2, "motions") as progress:
+        progress.step("a")
+        progress.step("b")
+    captured = capsys.readouterr()
+    assert captured.out == "" and "2/2 motions" in captured.err
 
 
 def test_the_count_stops_at_the_total():
@@ -69,8 +73,3 @@ def test_the_count_stops_at_the_total():
 def test_no_steps_is_an_error():
     with pytest.raises(ArcCalibError, match="at least one step"):
         Progress(0)
-
-
-@pytest.mark.parametrize(("seconds", "text"), [(4.4, "4 s"), (59.4, "59 s"), (185, "3:05"), (3729, "1:02:09")])
-def test_clock(seconds, text):
-    assert _clock(seconds) == text

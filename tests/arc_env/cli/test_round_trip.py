@@ -121,7 +121,8 @@ def test_png_round_trip_with_pruned_motions_exports_and_overlay(recording, tmp_p
     assert cov.shape == (6, 6) and np.allclose(cov, cov.T)
     np.testing.assert_allclose(result["std"]["translation_mm"], np.sqrt(np.diag(cov)[3:]) * 1e3)
     assert result["frames"] == {"parent": "panda_link0", "child": "camera_color_optical_frame",
-                                "child_is": result["frames"]["child_is"]}
+                                "child_is": result["frames"]["child_is"], "optical_frame": "camera_color_optical_frame"}
+    assert result["calib_name"] == recording.name
     # the exports beside it carry the inverse, base -> optical frame
     import yaml
 
@@ -131,7 +132,17 @@ def test_png_round_trip_with_pruned_motions_exports_and_overlay(recording, tmp_p
     np.testing.assert_allclose(transform_from_rt(Rotation.from_quat(r).as_matrix(), t) @ T, np.eye(4), atol=1e-7)
     tf = (tmp_path / "result.tf.sh").read_text()
     assert "--frame-id panda_link0 --child-frame-id camera_color_optical_frame" in tf
-    assert (tmp_path / "result.urdf.xml").is_file()
+    assert os.access(tmp_path / "result.tf.sh", os.X_OK)
+    assert {p.name for p in tmp_path.glob("result.*")} == {"result.json", "result.calib", "result.tf.sh", "result.urdf",
+                                                           "result.urdf.xacro", "result.launch.py"}
+    assert result["exports"] == {"easy_handeye2": "result.calib", "static_transform_publisher": "result.tf.sh",
+                                 "urdf": "result.urdf", "xacro": "result.urdf.xacro", "launch": "result.launch.py"}
+    # re-exported without recalibrating, under another base frame: the same transform
+    assert main(["export", str(tmp_path / "result.json"), "--output", str(tmp_path / "re"),
+                 "--base-frame", "world"]) == 0
+    again = yaml.safe_load((tmp_path / "re" / "result.calib").read_text())
+    assert again["transform"] == yaml.safe_load((tmp_path / "result.calib").read_text())["transform"]
+    assert again["parameters"]["robot_base_frame"] == "world" and again["parameters"]["name"] == recording.name
     overlays = sorted((tmp_path / "overlay").glob("overlay_motion_*.png"))
     assert 1 <= len(overlays) <= 4
     assert cv2.imread(str(overlays[0])).shape == (540, 960, 3)

@@ -152,3 +152,46 @@ def test_short_tracked_episode_reaches_a_bounded_error():
         assert np.all(obs["std"] > 0)
     finally:
         e.close()
+
+
+def test_make_with_the_module_prefix_works_in_a_fresh_interpreter():
+    """``gymnasium.make("arc_env:ArcCalib-v0")`` imports arc_env itself: Gymnasium 1.x's way for a plugin env.
+
+    (Gymnasium 1.x loads no ``gymnasium.envs`` entry points, so a bare ``make("ArcCalib-v0")`` without any
+    import of arc_env cannot find the env; the module prefix is the supported route.)
+    """
+    import os
+    import subprocess
+    import sys
+
+    code = ("import sys, gymnasium\n"
+            "assert 'arc_env' not in sys.modules\n"
+            "from gymnasium.error import NameNotFound\n"
+            "try:\n"
+            "    gymnasium.make('ArcCalib-v0')\n"
+            "    print('BARE ok')\n"
+            "except NameNotFound:\n"
+            "    print('BARE NameNotFound')\n"
+            "env = gymnasium.make('arc_env:ArcCalib-v0', max_episode_steps=3)\n"
+            "print('PREFIX', type(env.unwrapped).__name__, env.spec.id)\n"
+            "env.close()\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "PREFIX ArcCalibEnv ArcCalib-v0" in out.stdout
+    assert "BARE NameNotFound" in out.stdout  # documents Gymnasium 1.x: no plugin entry points
+
+
+def test_make_vec_builds_independent_envs():
+    envs = gym.make_vec("ArcCalib-v0", num_envs=2, vectorization_mode="sync",
+                        config=EnvConfig(scene=SMALL, max_motions=3))
+    try:
+        obs, info = envs.reset(seed=[1, 2])
+        assert obs["has_estimate"].shape == (2,) and np.all(obs["has_estimate"] == 0)
+        single = envs.single_observation_space
+        for i in range(2):
+            assert single.contains({k: v[i] for k, v in obs.items()})
+        poses = [e.unwrapped.T_camera_base_true for e in envs.envs]
+        assert not np.allclose(poses[0], poses[1])  # different seeds, different camera poses
+    finally:
+        envs.close()
