@@ -58,6 +58,9 @@ class RigidAxisConfig:
         max_fit_frames: frames per track the fit uses (evenly spaced); count.
         enough_inlier_fraction: once a start's fit keeps at least this fraction of the fit tracks,
             the remaining starts are not tried (no other rigid motion can explain more of them).
+        grid_directions: axis directions of the exhaustive start search (``_grid_starts``: evenly
+            over the sphere, about 4.5 degrees apart at 2000); count, 0 = no grid search.
+        grid_starts: most starts the grid search hands to the fit (best first, 15 degrees apart); count.
     """
 
     min_tracks: int = 6
@@ -70,6 +73,8 @@ class RigidAxisConfig:
     max_fit_tracks: int = 40
     max_fit_frames: int = 12
     enough_inlier_fraction: float = 0.9
+    grid_directions: int = 2000
+    grid_starts: int = 3
 
     def __post_init__(self) -> None:
         if self.min_tracks < 5:
@@ -77,10 +82,10 @@ class RigidAxisConfig:
         if not (self.min_pair_angle > 0 and self.ransac_px > 0 and self.max_track_rms_px > 0
                 and self.loss_scale_px > 0 and self.max_axis_std > 0 and 0 < self.min_inlier_fraction <= 1
                 and self.max_fit_tracks >= self.min_tracks and self.max_fit_frames >= 3
-                and 0 < self.enough_inlier_fraction <= 1):
+                and 0 < self.enough_inlier_fraction <= 1 and self.grid_directions >= 0 and self.grid_starts >= 1):
             raise InvalidInputError("RigidAxisConfig: angles, thresholds and scales must be > 0, min_inlier_fraction "
                                     "and enough_inlier_fraction in (0, 1], max_fit_tracks >= min_tracks, "
-                                    "max_fit_frames >= 3")
+                                    "max_fit_frames >= 3, grid_directions >= 0, grid_starts >= 1")
 
 
 @dataclass(frozen=True)
@@ -168,6 +173,66 @@ def _relative_pose(uv: list[FloatArray], frames: list[NDArray[np.int64]], angles
         if norm < 1e-9:
             continue
         starts.append((a, p / norm))
+    return starts
+
+
+def sphere_directions(n: int) -> FloatArray:
+    """Unit vectors (n, 3), n of them, spread evenly over the sphere (the golden-angle spiral)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(1.0 - z * z)
+    phi = np.pi * (1.0 + np.sqrt(5.0)) * i
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
+
+
+def _grid_starts(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
+                 config: RigidAxisConfig) -> list[tuple[FloatArray, FloatArray]]:
+    """Starting (a, p) pairs from an exhaustive search over axis directions (best first).
+
+    The relative pose of two frames needs tracks that both frames share; on realistic images the tracks
+    are short and half of them slide, so often no frame pair has enough good ones. This search uses each
+    track's own first and last frame instead. For a trial axis ``a`` the rotation of every track between
+    them is known (the joint's turn), and the rigid motion's translation ``(I - R) p`` with ``p``
+    perpendicular to ``a`` leaves one unknown, ``p``'s direction in that plane, which one track's
+    epipolar constraint fixes. So every track proposes a ``p``; each proposal is scored by the Sampson
+    distances (px, truncated at ``config.ransac_px``) of all tracks, and the trial axis keeps its best.
+    The axes with the lowest truncated cost, at least 15 degrees apart, are the starts.
+    """
+    turn = np.array([d[-1] - d[0] for d in deltas])
+    use = np.flatnonzero(np.abs(turn) >= config.min_pair_angle)
+    if config.grid_directions == 0 or use.shape[0] < config.min_tracks:
+        return []
+    theta = turn[use]
+    x = np.column_stack([np.array([uv[t][0] for t in use]), np.ones(use.shape[0])])  # (L, 3) first rays
+    y = np.column_stack([np.array([uv[t][-1] for t in use]), np.ones(use.shape[0])])  # (L, 3) last rays
+    directions = sphere_directions(config.grid_directions)
+    threshold = (config.ransac_px / focal) ** 2
+    costs = np.empty(directions.shape[0])
+    points = np.empty_like(directions)
+    c, s = np.cos(theta)[None, :, None, None], np.sin(theta)[None, :, None, None]
+    for lo in range(0, directions.shape[0], 64):
+        a = directions[lo:lo + 64]  # (A, 3)
+        R = c * np.eye(3) + s * _skew(a)[:, None] + (1.0 - c) * np.einsum("ai,aj->aij", a, a)[:, None]  # (A, L, 3, 3)
+        Rx = np.einsum("alij,lj->ali", R, x)
+        v = np.cross(Rx, y)  # the constraint t . v = 0 of each track, t = (I - R) p
+        g = v - np.einsum("alji,alj->ali", R, v)  # (I - R)^T v: p . g = 0
+        p = np.cross(a[:, None, :], g)  # (A, L, 3) each track's proposal, perpendicular to a and g
+        p /= np.maximum(np.linalg.norm(p, axis=2, keepdims=True), 1e-300)
+        t = p[:, :, None, :] - np.einsum("amij,alj->almi", R, p)  # (A, L proposals, L tracks, 3)
+        num = np.einsum("almi,ami->alm", t, v)
+        ex = np.cross(t, Rx[:, None])[..., :2]
+        ety = -np.einsum("amji,almj->almi", R, np.cross(t, y[None, None]))[..., :2]
+        sampson = num ** 2 / np.maximum(np.sum(ex ** 2, axis=-1) + np.sum(ety ** 2, axis=-1), 1e-300)
+        cost = np.sum(np.minimum(sampson, threshold), axis=2)  # (A, L)
+        best = np.argmin(cost, axis=1)
+        costs[lo:lo + 64] = cost[np.arange(a.shape[0]), best]
+        points[lo:lo + 64] = p[np.arange(a.shape[0]), best]
+    starts: list[tuple[FloatArray, FloatArray]] = []
+    for k in np.argsort(costs):
+        if not any(directions[k] @ a > np.cos(np.radians(15.0)) for a, _ in starts):
+            starts.append((directions[k], points[k]))
+        if len(starts) == config.grid_starts:
+            break
     return starts
 
 
@@ -575,8 +640,9 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         if np.linalg.norm(p) > 1e-9:
             guesses.append((a, p / np.linalg.norm(p)))
 
-    def candidates():  # the given starts first, then the relative poses (only if those are not enough)
+    def candidates():  # the given starts first, then the searches (only if those are not enough)
         yield from guesses
+        yield from _grid_starts(uv, deltas, focal, config)
         yield from _relative_pose(uv, frames, angles, focal, config)
 
     best = None

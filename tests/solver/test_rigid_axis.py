@@ -15,6 +15,7 @@ from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservati
 from solver.rigid_axis import (
     RigidAxisConfig,
     _ArrowSystem,
+    _grid_starts,
     _refine,
     _residuals,
     _rotations,
@@ -24,6 +25,7 @@ from solver.rigid_axis import (
     _turn,
     geometry_from_rigid_fit,
     rigid_axis_of_motion,
+    sphere_directions,
 )
 
 K = np.array([[1380.0, 0.0, 960.0], [0.0, 1380.0, 540.0], [0.0, 0.0, 1.0]])
@@ -223,3 +225,45 @@ def test_the_search_over_starts_is_checked():
         RigidAxisConfig(enough_inlier_fraction=0.0)
     with pytest.raises(InvalidInputError, match="enough_inlier_fraction"):
         RigidAxisConfig(enough_inlier_fraction=1.5)
+
+
+def _far_scene(seed: int):
+    """The camera 1.9-2.4 m away, half the tracks sliding, tracks spanning 1/3 to all of a 0.9 rad turn."""
+    rng = np.random.default_rng(100 + seed)
+    axis = rng.normal(size=3)
+    point = np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(1.9, 2.4)])
+    return _scene(seed, axis, point, n_tracks=20, sliding=20, turn=0.9, noise_px=0.4)
+
+
+def test_sphere_directions_cover_the_sphere_evenly():
+    d = sphere_directions(2000)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+    # every direction of a dense random set is within 4 degrees of a grid direction
+    probe = np.random.default_rng(0).normal(size=(5000, 3))
+    probe /= np.linalg.norm(probe, axis=1, keepdims=True)
+    assert np.degrees(np.arccos(np.clip((probe @ d.T).max(axis=1), -1, 1))).max() < 4.0
+    np.testing.assert_allclose(d.mean(axis=0), 0.0, atol=2e-3)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_the_grid_search_starts_near_the_axis_with_half_the_tracks_sliding(seed):
+    obs, axis = _far_scene(seed)
+    uv = [normalized_from_pixels(t.pixels, CAMERA) for t in obs.tracks]
+    starts = _grid_starts(uv, [t.delta for t in obs.tracks], 1380.0, RigidAxisConfig())
+    assert 1 <= len(starts) <= RigidAxisConfig().grid_starts
+    # one of the starts within the grid's spacing (plus noise) of the true axis, the others 15 deg apart
+    assert min(_angle(a, axis) for a, _ in starts) < np.radians(8.0)
+    for i, (a, p) in enumerate(starts):
+        assert abs(a @ p) < 1e-9 and abs(np.linalg.norm(p) - 1.0) < 1e-9
+        assert all(_angle(a, b) > np.radians(15.0) for b, _ in starts[:i])
+
+
+def test_a_far_camera_with_sliding_tracks_still_gives_the_axis():
+    """Seed 1: no frame pair's essential matrix finds the rigid motion; the grid search's start does."""
+    obs, axis = _far_scene(1)
+    fit = rigid_axis_of_motion(obs, CAMERA)
+    assert _angle(fit.axis_cam, axis) < np.radians(1.0)
+    assert fit.track_inliers[:20].sum() >= 18 and fit.track_inliers[20:].sum() <= 2
+    assert RigidAxisConfig(grid_directions=0).grid_directions == 0
+    with pytest.raises(InvalidInputError, match="grid_directions"):
+        RigidAxisConfig(grid_directions=-1)
