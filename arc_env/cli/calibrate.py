@@ -74,7 +74,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     check_frame_names(args)
     truth = _read_ground_truth(Path(args.ground_truth)) if args.ground_truth else None
     started = time.perf_counter()
-    recording = read_recording(args.recording)
+    recording = read_recording(args.recording, time_offset_s=args.time_offset)
     if args.base_frame is None:
         check_frame_name(recording.base_body, f"{recording.path / 'robot.json'}: the base body (or give --base-frame)")
     usable = recording.usable
@@ -97,5 +97,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", help="the recording directory (docs/recording-format.md)")
     add_result_arguments(parser)
     parser.add_argument("--overlay", metavar="DIR", help="write PNGs of the robot drawn with the estimate here")
+    parser.add_argument("--time-offset", type=float, default=0.0, metavar="SECONDS",
+                        help="d = t_joint - t_camera, s: the joints at an exposure stamped t are read at t + d "
+                             "(d > 0: joint stamps late; record --joint-latency-ms 20 is d = 0.020). Needs time "
+                             "stamps (recording format 2 or a bag); default 0")
     parser.add_argument("--ground-truth", metavar="FILE",
                         help="a <recording>.ground_truth.json (simulated recordings): also print the true error")
