@@ -574,6 +574,10 @@ class BagWriter:
         self.writer.close()
         return self.path
 
+    def abort(self) -> None:
+        """Stop writing and remove the partial bag."""
+        self.writer.abort()
+
 
 __all__ = [
     "CAMERA_INFO",
