@@ -77,6 +77,12 @@ def main(argv: list[str] | None = None) -> int:
     record.add_argument("--joint-latency-ms", type=float, default=0.0, metavar="MS",
                         help="stamp the joint log this late relative to the camera (negative: early), as a rig "
                              "whose joint_states clock disagrees with the camera's; default 0")
+    record.add_argument("--format", choices=("dir", "bag", "mcap"), default="dir",
+                        help="dir: a recording directory (default); bag / mcap: one continuous ROS 2 bag (sqlite3 / "
+                             "MCAP storage) with camera_info, images and 200 Hz joint_states, transits included; "
+                             "the robot model goes to DIR.robot/")
+    record.add_argument("--image-encoding", choices=("rgb8", "jpeg"), default="jpeg",
+                        help="a bag's images: rgb8 (sensor_msgs/Image) or jpeg (CompressedImage; default)")
     _add_look_arguments(record)
     calibrate = sub.add_parser("calibrate", help="calibrate from a recording; write the result and ROS exports")
     from arc_env.cli.calibrate import add_arguments

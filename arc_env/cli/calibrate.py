@@ -1,4 +1,8 @@
-"""``arc-calib calibrate``: a recording in, ``T_camera_base`` with its uncertainty and ROS exports out.
+"""``arc-calib calibrate``: a recording or a ROS bag in, ``T_camera_base`` with its uncertainty and ROS exports out.
+
+A bag (``arc_env.robot.bag``: a ROS 2 bag directory, a ``.mcap`` file or a ROS 1 ``.bag``) is read into
+the same recording: the motions are the segments of its joint stream where one joint turns alone
+(printed, with the spans skipped and why), the robot model comes from ``--robot``/``--base-body``.
 
 For each motion of the recording (``arc_env.robot.recording``): decode its frames, track keypoints on the
 moving links, and hand the tracks with the joint offset of every frame to the calibrator
@@ -22,9 +26,11 @@ import numpy as np
 
 from arc_env.cli.progress import Progress
 from arc_env.cli.result import add_result_arguments, check_frame_names, check_outputs, finish
+from arc_env.robot.bag import BagRecording, is_bag, read_bag
 from arc_env.robot.exports import calib_name_from, check_frame_name, easy_handeye2_install_path, ros_base_frame
 from arc_env.robot.overlay import RobotProjector, draw_overlay
-from arc_env.robot.recording import read_recording
+from arc_env.robot.recording import Recording, read_recording
+from arc_env.robot.segmentation import SegmentConfig
 from arc_env.robot.session import CalibrationRun, UsableCriteria, calibrate_recording
 from solver.arrays import evenly_spaced
 from solver.errors import InvalidInputError
@@ -66,20 +72,65 @@ def _read_ground_truth(path: Path) -> np.ndarray:
         raise InvalidInputError(f"{path}: not a ground-truth file with a T_camera_base: {exc}") from exc
 
 
+#: The options that only apply to bags (``arc-calib calibrate`` refuses them with a recording directory).
+BAG_OPTIONS = ("robot", "base_body", "image_topic", "camera_info_topic", "joint_topic", "camera_info")
+
+
+def _read_input(args: argparse.Namespace) -> Recording:
+    """The recording directory or the bag named on the command line."""
+    if not is_bag(args.recording):
+        given = [f"--{o.replace('_', '-')}" for o in BAG_OPTIONS if getattr(args, o) is not None]
+        if given:
+            raise InvalidInputError(f"{args.recording}: {', '.join(given)} apply to bags only (a .mcap or .bag file, "
+                                    "or a ROS 2 bag directory with metadata.yaml); a recording names its robot "
+                                    "and camera itself")
+        return read_recording(args.recording, time_offset_s=args.time_offset)
+    if not args.robot:
+        raise InvalidInputError(f"{args.recording}: a bag needs --robot FILE (the robot's MJCF or URDF) and "
+                                "--base-body NAME (default: the model's first body)")
+    recording = read_bag(args.recording, args.robot, args.base_body, image_topic=args.image_topic,
+                         camera_info_topic=args.camera_info_topic, joint_topic=args.joint_topic,
+                         camera_info_file=args.camera_info, time_offset_s=args.time_offset,
+                         segmentation=SegmentConfig(min_delta_rad=args.min_delta))
+    print_segments(recording)
+    return recording
+
+
+def print_segments(bag: BagRecording) -> None:
+    """The motions found in the bag's joint stream and the spans skipped, on stderr."""
+    t = bag.topics
+    print(f"{bag.path}: images {t.image} ({bag.n_images}), joints {t.joints}, camera "
+          f"{t.camera_info or bag.camera_source}; time offset {bag.time_offset_s * 1e3:+g} ms", file=sys.stderr)
+    names, t0 = bag.joint_names, bag.t0
+    print(f"{len(bag.segments)} exploratory motion(s) found in {t.joints} (times from the first image):",
+          file=sys.stderr)
+    for m, s in zip(bag.motions, bag.segments, strict=True):
+        pruned = f"  (pruned: {m.pruned})" if m.pruned else ""
+        print(f"  motion {m.name}: {names[int(np.argmax(s.ranges))]} delta {s.delta:+.3f} rad, {s.duration:.2f} s "
+              f"({s.t_start - t0:.2f}-{s.t_stop - t0:.2f} s), {m.n_frames} frames{pruned}", file=sys.stderr)
+    if bag.skipped:
+        print(f"{len(bag.skipped)} span(s) skipped:", file=sys.stderr)
+        for s in bag.skipped:
+            print(f"  {s.t_start - t0:.2f}-{s.t_stop - t0:.2f} s ({s.duration:.2f} s): {s.reason}", file=sys.stderr)
+
+
 def run_calibrate(args: argparse.Namespace) -> int:
     """``arc-calib calibrate`` from parsed arguments; returns the exit code (0 only for a usable result)."""
     UsableCriteria(min_motions=args.min_motions, max_std_deg=args.max_std_deg, max_std_mm=args.max_std_mm)
-    inputs = [Path(args.recording)] + ([Path(args.ground_truth)] if args.ground_truth else [])
+    inputs = [Path(args.recording)] + [Path(f) for f in (args.ground_truth, args.robot, args.camera_info) if f]
     check_frame_names(args)
-    calib_name = args.calib_name or calib_name_from(Path(args.recording).resolve().name)
+    source = Path(args.recording).resolve()
+    calib_name = args.calib_name or calib_name_from(source.stem if source.is_file() else source.name)
     check_outputs(Path(args.output), inputs, args.force, Path(args.overlay) if args.overlay else None,
                   installed_calib=easy_handeye2_install_path(calib_name) if args.install_calib else None)
     truth = _read_ground_truth(Path(args.ground_truth)) if args.ground_truth else None
     started = time.perf_counter()
-    recording = read_recording(args.recording)
+    recording = _read_input(args)
     base_frame = args.base_frame or ros_base_frame(recording.base_body)
     if args.base_frame is None:
-        check_frame_name(base_frame, f"{recording.path / 'robot.json'}: the base body (or give --base-frame)")
+        where = (f"{recording.path / 'robot.json'}: the base body" if not isinstance(recording, BagRecording)
+                 else f"--base-body {recording.base_body}")
+        check_frame_name(base_frame, f"{where} (or give --base-frame)")
     usable = recording.usable
     print(f"{recording.path}: {len(recording.motions)} motions ({len(usable)} with one moving joint), camera "
           f"{recording.intrinsics.width}x{recording.intrinsics.height}"
@@ -97,8 +148,25 @@ def run_calibrate(args: argparse.Namespace) -> int:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The ``arc-calib calibrate`` options."""
-    parser.add_argument("recording", help="the recording directory (docs/recording-format.md)")
+    parser.add_argument("recording", help="the recording directory (docs/recording-format.md), or a ROS bag: a "
+                                          "ROS 2 bag directory (sqlite3 or MCAP), a .mcap file or a ROS 1 .bag")
     add_result_arguments(parser)
     parser.add_argument("--overlay", metavar="DIR", help="write PNGs of the robot drawn with the estimate here")
+    parser.add_argument("--time-offset", type=float, default=0.0, metavar="SECONDS",
+                        help="d = t_joint - t_camera, s: the joints at an exposure stamped t are read at t + d "
+                             "(d > 0: joint stamps late; record --joint-latency-ms 20 is d = 0.020). Needs time "
+                             "stamps (recording format 2 or a bag); default 0")
+    bag = parser.add_argument_group("bags", "options for a ROS bag input (topics are found by message type)")
+    bag.add_argument("--robot", metavar="FILE", help="the robot's MJCF or URDF (required for a bag)")
+    bag.add_argument("--base-body", metavar="NAME",
+                     help="the body the result is expressed in (default: the model's first body)")
+    bag.add_argument("--image-topic", help="the sensor_msgs/Image or CompressedImage topic, when several")
+    bag.add_argument("--camera-info-topic", help="the sensor_msgs/CameraInfo topic, when several")
+    bag.add_argument("--joint-topic", help="the sensor_msgs/JointState topic, when several")
+    bag.add_argument("--camera-info", metavar="FILE",
+                     help="a camera_calibration_parsers YAML with the intrinsics, instead of a CameraInfo topic")
+    bag.add_argument("--min-delta", type=float, default=SegmentConfig.min_delta_rad, metavar="RAD",
+                     help="smallest turn of one joint that counts as an exploratory motion, rad (default "
+                          f"{SegmentConfig.min_delta_rad})")
     parser.add_argument("--ground-truth", metavar="FILE",
                         help="a <recording>.ground_truth.json (simulated recordings): also print the true error")

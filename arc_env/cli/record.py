@@ -24,15 +24,22 @@ def run_record(args: argparse.Namespace) -> int:
     settings = RecordSettings(out=Path(args.out), motions=args.motions, seed=args.seed, width=args.width,
                               height=args.height, fx=args.fx, dist=dist, video=args.video, fps=args.fps,
                               robot=robot, realism=args.realism, appearance=args.appearance,
-                              joint_latency_s=args.joint_latency_ms / 1000.0)
+                              joint_latency_s=args.joint_latency_ms / 1000.0, format=args.format,
+                              image_encoding=args.image_encoding)
     started = time.perf_counter()
     with Progress(settings.motions, "motions recorded") as bar:
         truth = record_episode(settings, on_motion=bar.step)
-    print(f"wrote {settings.out} ({settings.motions} motions, {settings.width}x{settings.height}, "
-          f"{'MP4' if settings.video else 'PNG'}{', distorted' if dist else ''}"
+    kind = {"dir": "", "bag": "ROS 2 bag (sqlite3) ", "mcap": "ROS 2 bag (MCAP) "}[settings.format]
+    media = args.image_encoding if settings.format != "dir" else "MP4" if settings.video else "PNG"
+    print(f"wrote {kind}{settings.out} ({settings.motions} motions, {settings.width}x{settings.height}, "
+          f"{media}{', distorted' if dist else ''}"
           f"{f', joint log {args.joint_latency_ms:+g} ms' if args.joint_latency_ms else ''}) in "
           f"{time.perf_counter() - started:.1f} s")
     print(f"ground truth (not part of the recording): {ground_truth_path(settings.out)}")
+    if settings.format != "dir":
+        print(f"robot model (beside it): {truth['robot_model']}; calibrate with:\n  arc-calib calibrate {settings.out} "
+              f"--robot {truth['robot_model']} --base-body {truth['base_body']} --output result.json"
+              f"{f' --time-offset {settings.joint_latency_s:g}' if settings.joint_latency_s else ''}")
     np.set_printoptions(precision=5, suppress=True)
     print(f"T_camera_base (true):\n{np.asarray(truth['T_camera_base'])}")
     return 0

@@ -3,5 +3,6 @@
 ``model`` (the robot from its MJCF or URDF: kinematics and geometry), ``tracking`` (keypoint tracks),
 ``recording`` (the recording format), ``session`` (the one calibration loop), ``driver`` (the
 ``RobotDriver`` protocol), ``exports`` (result.json and ROS exports; the atomic writer), ``overlay``
-(the robot drawn over frames with an estimate).
+(the robot drawn over frames with an estimate), ``timing`` (joints at exposure times: the time
+offset), ``segmentation`` (exploratory motions in a joint stream), ``bag`` (ROS bags in and out).
 """

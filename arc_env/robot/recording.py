@@ -16,6 +16,12 @@ hinge joints below the base body, in tree order). For each motion, Q is row 0 of
 it does not list stay at the model's default), J is the one joint that moves and delta per frame is
 q_J(frame) - q_J(frame 0).
 
+Format 2 (told apart per motion by joints.csv's header, ``t,...`` instead of ``frame,...``): joints.csv
+is a time series at the robot's own rate (joint clock) and ``frames.csv`` (``frame,t``) gives every frame's
+exposure time (camera clock); the joints at each exposure are interpolated linearly after shifting by the
+time offset (``arc_env.robot.timing``: d = t_joint - t_camera), and the swept joint's velocity at each
+exposure is kept (``RecordedMotion.joint_velocity``) for a later time-offset estimate.
+
 ``RecordingWriter`` writes the format (``arc-calib record`` uses it) into a temporary directory that is
 renamed into place only when the recording is complete.
 """
@@ -36,13 +42,15 @@ import numpy as np
 
 from arc_env.robot.exports import write_files_atomic
 from arc_env.robot.model import RobotModel, RobotSource, panda_mjcf_dir, robot_spec
+from arc_env.robot.timing import check_times, joints_at_times
 from solver.arrays import FloatArray, ImageArray
 from solver.errors import InvalidInputError
 from solver.kinematics import AxisFunction
 from solver.observations import MAX_IMAGE_SIDE, CameraIntrinsics
 
-#: Version of ``docs/recording-format.md`` this module reads and writes.
-FORMAT_VERSION = 1
+#: Newest version of ``docs/recording-format.md`` this module reads (it reads 1 and 2; ``RecordingWriter``
+#: writes 1, or 2 when given times).
+FORMAT_VERSION = 2
 #: A joint "moves" in a motion when its positions span more than this, rad (0.57 degrees): well above
 #: encoder noise and servo jitter (~1e-4 rad), well below an exploratory turn (>= 0.2 rad).
 MOVING_THRESHOLD_RAD = 0.01
@@ -52,6 +60,7 @@ JOINT_RANGE_SLACK_RAD = 1.0
 #: Fewest usable motions a recording must hold (the linear calibration needs 3).
 MIN_MOTIONS = 3
 VIDEO_NAME = "video.mp4"
+FRAMES_CSV = "frames.csv"
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
@@ -70,6 +79,11 @@ class RecordedMotion:
         joint: index into ``Recording.joint_names`` of the joint that moves; None when pruned.
         delta: (F,) float64, rad: q_J(frame) - q_J(frame 0); zeros when pruned.
         pruned: "" or why the motion cannot be used (no joint moves, several move).
+        times: (F,) float64, s: each frame's exposure time on the camera clock (format 2, bags); None in
+            format 1.
+        joint_velocity: (F,) float64, rad/s: joint J's velocity at each exposure (the joint series' finite
+            difference, interpolated like the positions); None in format 1 and when pruned. What a
+            time-offset estimate needs: delta(t + dd) ~ delta(t) + joint_velocity * dd.
     """
 
     index: int
@@ -82,6 +96,13 @@ class RecordedMotion:
     joint: int | None
     delta: FloatArray
     pruned: str
+    times: FloatArray | None = None
+    joint_velocity: FloatArray | None = None
+
+    @property
+    def count_file(self) -> Path:
+        """The file whose rows count the frames: frames.csv (format 2) or joints.csv (format 1)."""
+        return self.path / (FRAMES_CSV if self.times is not None else "joints.csv")
 
     @property
     def label(self) -> str:
@@ -102,11 +123,16 @@ class Recording:
         motions: every motion, pruned ones included.
         ignored_joints: joints.csv columns that are joints of the model but not arm hinges (e.g.
             gripper fingers): read, checked for finite values, otherwise ignored.
+        time_offset_s: d = t_joint - t_camera (``arc_env.robot.timing``) the joints were read with, s.
+        camera_source: the file the intrinsics came from (messages name it).
     """
 
     def __init__(self, path: Path, intrinsics: CameraIntrinsics, model_path: Path, base_body: str,
-                 robot: RobotModel, motions: list[RecordedMotion], ignored_joints: tuple[str, ...]):
+                 robot: RobotModel, motions: list[RecordedMotion], ignored_joints: tuple[str, ...],
+                 time_offset_s: float = 0.0, camera_source: str | None = None):
         self.path = path
+        self.time_offset_s = time_offset_s
+        self.camera_source = camera_source or str(path / "camera.json")
         self.intrinsics = intrinsics
         self.model_path = model_path
         self.base_body = base_body
@@ -163,7 +189,7 @@ class Recording:
             if len(images) != motion.n_frames:
                 raise InvalidInputError(
                     f"{motion.video}: decoded {len(images)}{'+' if len(images) > motion.n_frames else ''} frames, "
-                    f"but {motion.path / 'joints.csv'} has {motion.n_frames} rows (corrupt or truncated video?)")
+                    f"but {motion.count_file} has {motion.n_frames} rows (corrupt or truncated video?)")
         for k, image in enumerate(images):
             if image.shape[:2] != (cam.height, cam.width):
                 where = motion.frame_paths[k] if motion.video is None else f"{motion.video} frame {k}"
@@ -242,9 +268,9 @@ def read_robot(path: Path) -> tuple[Path, str, RobotModel]:
     return model_path, base, robot
 
 
-def _read_joints_csv(path: Path) -> tuple[list[str], FloatArray]:
-    """joints.csv -> (joint names, (F, n) positions rad); checks the frame column and finiteness."""
-    _check_regular_file(path, "every motion needs joints.csv")
+def _csv_rows(path: Path, missing: str) -> list[list[str]]:
+    """The non-blank rows of a CSV file (header first), at least a header and one row."""
+    _check_regular_file(path, missing)
     try:
         with path.open(newline="") as f:
             rows = [r for r in csv.reader(f) if r and any(cell.strip() for cell in r)]
@@ -252,32 +278,87 @@ def _read_joints_csv(path: Path) -> tuple[list[str], FloatArray]:
         raise InvalidInputError(f"{path}: unreadable: {exc}") from exc
     if len(rows) < 2:
         raise InvalidInputError(f"{path}: needs a header and at least one row, got {len(rows)} line(s)")
+    return rows
+
+
+def _read_joints_csv(path: Path) -> tuple[list[str], FloatArray, FloatArray | None]:
+    """joints.csv -> (joint names, (M, n) positions rad, None or (M,) times s).
+
+    Format 1 (header ``frame,...``): one row per frame, frame numbers checked; times None. Format 2
+    (header ``t,...``): one row per joint sample, t (joint clock, s) finite and strictly increasing.
+    """
+    rows = _csv_rows(path, "every motion needs joints.csv")
     header = [h.strip() for h in rows[0]]
-    if header[0] != "frame" or len(header) < 2:
-        raise InvalidInputError(f"{path}: header must be 'frame,<joint name>,...', got {','.join(header)!r}")
+    if header[0] not in ("frame", "t") or len(header) < 2:
+        raise InvalidInputError(f"{path}: header must be 'frame,<joint name>,...', got {','.join(header)!r} "
+                                "(or 't,<joint name>,...' beside a frames.csv: format 2)")
+    timed = header[0] == "t"
     names = header[1:]
     duplicated = sorted({n for n in names if names.count(n) > 1})
     if duplicated:
         raise InvalidInputError(f"{path}: joint(s) {duplicated} appear more than once in the header")
     values = np.empty((len(rows) - 1, len(names)))
+    times = np.empty(len(rows) - 1)
     for k, row in enumerate(rows[1:]):
         line = k + 2
+        where = f"{path} line {line} ({'sample' if timed else 'frame'} {k})"
         if len(row) != len(header):
             raise InvalidInputError(f"{path} line {line}: {len(row)} values, the header has {len(header)}")
         try:
-            frame = int(row[0])
+            first = float(row[0]) if timed else int(row[0])
             values[k] = [float(v) for v in row[1:]]
+        except ValueError as exc:
+            raise InvalidInputError(f"{path} line {line}: not a number: {exc}") from exc
+        if timed:
+            times[k] = first
+        elif first != k:
+            raise InvalidInputError(f"{path} line {line}: frame {first}, expected {k} (rows in frame order from 0)")
+        bad = [names[j] for j in np.nonzero(~np.isfinite(values[k]))[0]]
+        if bad:
+            raise InvalidInputError(f"{where}: joint(s) {bad} are NaN or infinite")
+    if timed:
+        _check_column_times(path, times)
+    return names, values, (times if timed else None)
+
+
+def _check_column_times(path: Path, times: FloatArray) -> None:
+    """A CSV's t column finite and strictly increasing; the message gives the line."""
+    try:
+        check_times(times, str(path))
+    except InvalidInputError:
+        step = np.diff(times)
+        bad = np.nonzero(~np.isfinite(times))[0]
+        k = int(bad[0]) if bad.size else int(np.nonzero(step <= 0)[0][0]) + 1
+        why = ("t is NaN or infinite" if bad.size else
+               f"t = {float(times[k])!r} s repeats the previous row (duplicate time)" if step[k - 1] == 0 else
+               f"t = {float(times[k])!r} s is earlier than the previous row's {float(times[k - 1])!r} s "
+               "(t must increase)")
+        raise InvalidInputError(f"{path} line {k + 2}: {why}") from None
+
+
+def _read_frames_csv(path: Path) -> FloatArray:
+    """frames.csv (``frame,t``) -> (F,) exposure times s (camera clock); frame numbers 0, 1, ... in order."""
+    rows = _csv_rows(path, "a joints.csv with a t column (format 2) needs frames.csv: frame,t")
+    header = [h.strip() for h in rows[0]]
+    if header != ["frame", "t"]:
+        raise InvalidInputError(f"{path}: header must be 'frame,t', got {','.join(header)!r}")
+    times = np.empty(len(rows) - 1)
+    for k, row in enumerate(rows[1:]):
+        line = k + 2
+        if len(row) != 2:
+            raise InvalidInputError(f"{path} line {line}: {len(row)} values, the header has 2")
+        try:
+            frame, times[k] = int(row[0]), float(row[1])
         except ValueError as exc:
             raise InvalidInputError(f"{path} line {line}: not a number: {exc}") from exc
         if frame != k:
             raise InvalidInputError(f"{path} line {line}: frame {frame}, expected {k} (rows in frame order from 0)")
-        bad = [names[j] for j in np.nonzero(~np.isfinite(values[k]))[0]]
-        if bad:
-            raise InvalidInputError(f"{path} line {line} (frame {k}): joint(s) {bad} are NaN or infinite")
-    return names, values
+    _check_column_times(path, times)
+    return times
 
 
-def _check_joint_range(path: Path, names: list[str], values: FloatArray, robot: RobotModel) -> None:
+def _check_joint_range(path: Path, names: list[str], values: FloatArray, robot: RobotModel,
+                       row: str = "frame") -> None:
     """Every arm joint's value within its limits give or take ``JOINT_RANGE_SLACK_RAD`` (names file, line, joint)."""
     for i, name in enumerate(robot.joint_names):
         if name not in names:
@@ -287,7 +368,7 @@ def _check_joint_range(path: Path, names: list[str], values: FloatArray, robot: 
         bad = np.nonzero((column < lo) | (column > hi))[0]
         if bad.size:
             k = int(bad[0])
-            raise InvalidInputError(f"{path} line {k + 2} (frame {k}): {name} = {column[k]:g} rad is outside its "
+            raise InvalidInputError(f"{path} line {k + 2} ({row} {k}): {name} = {column[k]:g} rad is outside its "
                                     f"limits [{robot.lower[i]:.3f}, {robot.upper[i]:.3f}] by more than "
                                     f"{JOINT_RANGE_SLACK_RAD:g} rad (degrees instead of radians? another robot?)")
 
@@ -305,9 +386,10 @@ def _png_size(path: Path) -> tuple[int, int]:
     return int(width), int(height)
 
 
-def _check_images(motion_dir: Path, n_rows: int, camera: CameraIntrinsics) -> tuple[tuple[Path, ...], Path | None]:
+def _check_images(motion_dir: Path, n_rows: int, camera: CameraIntrinsics,
+                  csv_path: Path) -> tuple[tuple[Path, ...], Path | None]:
+    """The frames' files (PNGs or a video), as many as csv_path has rows, of the camera's size."""
     frames_dir, video = motion_dir / "frames", motion_dir / VIDEO_NAME
-    csv_path = motion_dir / "joints.csv"
     size = f"{camera.width}x{camera.height}"
     if frames_dir.is_dir() and video.exists():
         raise InvalidInputError(f"{motion_dir}: has both frames/ and {VIDEO_NAME}; keep one")
@@ -368,13 +450,15 @@ def _classify(names: list[str], values: FloatArray, joint_names: tuple[str, ...]
 
 
 def read_recording(path: str | Path, moving_threshold: float = MOVING_THRESHOLD_RAD,
-                   min_motions: int = MIN_MOTIONS) -> Recording:
+                   min_motions: int = MIN_MOTIONS, time_offset_s: float = 0.0) -> Recording:
     """Read and validate a recording (images are checked by header; decoded by ``Recording.frames``).
 
     Args:
         path: the recording directory.
         moving_threshold: rad; a joint moves when its positions span more than this.
         min_motions: fewest motions that must survive the joint check.
+        time_offset_s: d = t_joint - t_camera, s (``arc_env.robot.timing``): format 2 motions read their
+            joints at each exposure time + d; a nonzero d is refused for format 1 motions (no times).
 
     Returns:
         The recording, with pruned motions marked (``RecordedMotion.pruned``).
@@ -384,8 +468,12 @@ def read_recording(path: str | Path, moving_threshold: float = MOVING_THRESHOLD_
             model that does not load, an unknown joint name, a non-numeric, NaN or infinite joint
             value, frame numbers out of order, a frame count that differs from the row count, a PNG or
             video that is not one or does not open, images of another size than camera.json's, or
-            fewer than ``min_motions`` usable motions (the message lists why each was pruned).
+            fewer than ``min_motions`` usable motions (the message lists why each was pruned). Format 2:
+            a frames.csv missing or malformed, times not finite or not strictly increasing, an exposure
+            outside the joint samples' span, or a frames.csv beside a format 1 joints.csv.
     """
+    if not np.isfinite(time_offset_s):
+        raise InvalidInputError(f"the time offset must be finite, got {time_offset_s}")
     root = Path(path)
     if not root.is_dir():
         raise InvalidInputError(f"{root}: not a directory (a recording is a directory; see docs/recording-format.md)")
@@ -411,18 +499,36 @@ def read_recording(path: str | Path, moving_threshold: float = MOVING_THRESHOLD_
     ignored: set[str] = set()
     for index, d in enumerate(dirs):
         csv_path = d / "joints.csv"
-        names, values = _read_joints_csv(csv_path)
+        names, values, joint_times = _read_joints_csv(csv_path)
         unknown = [n for n in names if n not in model_joints]
         if unknown:
             raise InvalidInputError(f"{csv_path}: unknown joint(s) {unknown}; joints of {model_path.name} "
                                     f"below {base!r}: {list(joint_names)}")
         ignored.update(n for n in names if n not in joint_names)
-        _check_joint_range(csv_path, names, values, robot)
-        frame_paths, video = _check_images(d, values.shape[0], camera)
+        _check_joint_range(csv_path, names, values, robot, "frame" if joint_times is None else "sample")
+        frame_times = velocities = None
+        if joint_times is None:
+            if (d / FRAMES_CSV).exists():
+                raise InvalidInputError(f"{d / FRAMES_CSV}: exposure times need a joints.csv with a t column "
+                                        f"(format 2); {csv_path} starts with 'frame' (format 1: one row per frame)")
+            if time_offset_s:
+                raise InvalidInputError(f"{csv_path}: a time offset needs time stamps, and this motion has none "
+                                        "(format 1: one row per frame); drop --time-offset or record format 2")
+        else:
+            frame_times = _read_frames_csv(d / FRAMES_CSV)
+            if len(joint_times) < 2:
+                raise InvalidInputError(f"{csv_path}: {len(joint_times)} sample; interpolation needs at least 2")
+            values, velocities = joints_at_times(frame_times, joint_times, values, time_offset_s,
+                                                 f"{d / FRAMES_CSV} against {csv_path}")
+        count_file = csv_path if frame_times is None else d / FRAMES_CSV
+        frame_paths, video = _check_images(d, values.shape[0], camera, count_file)
         q, joint, delta, pruned = _classify(names, values, joint_names, default, moving_threshold)
+        joint_velocity = None
+        if velocities is not None and joint is not None:
+            joint_velocity = velocities[:, names.index(joint_names[joint])]
         motions.append(RecordedMotion(index, d.name, d, values.shape[0], frame_paths, video, q, joint,
-                                      delta, pruned))
-    recording = Recording(root, camera, model_path, base, robot, motions, tuple(sorted(ignored)))
+                                      delta, pruned, frame_times, joint_velocity))
+    recording = Recording(root, camera, model_path, base, robot, motions, tuple(sorted(ignored)), time_offset_s)
     usable = recording.usable
     if len(usable) < min_motions:
         why = "; ".join(f"motion {m.name}: {m.pruned}" for m in motions if m.pruned)
@@ -515,18 +621,35 @@ class RecordingWriter:
                             + "\n"})
         (self.tmp / "motions").mkdir()
 
-    def add_motion(self, joint_names: Sequence[str], positions: FloatArray, frames: Sequence[ImageArray]) -> Path:
-        """Write one motion: positions (F, n) rad for joint_names, and F frames (H, W, 3) uint8 RGB."""
+    def add_motion(self, joint_names: Sequence[str], positions: FloatArray, frames: Sequence[ImageArray],
+                   frame_times: FloatArray | None = None, joint_times: FloatArray | None = None) -> Path:
+        """Write one motion: F frames (H, W, 3) uint8 RGB and the joints' positions for joint_names.
+
+        Format 1 (no times): positions (F, n) rad, one row per frame. Format 2: frame_times (F,) s
+        (camera clock, frames.csv) and positions (M, n) rad sampled at joint_times (M,) s (joint clock).
+        """
         positions = np.asarray(positions, dtype=np.float64)
-        if positions.shape != (len(frames), len(joint_names)):
-            raise InvalidInputError(f"positions must be ({len(frames)}, {len(joint_names)}), got {positions.shape}")
+        timed = frame_times is not None
+        if timed != (joint_times is not None):
+            raise InvalidInputError("give both frame_times and joint_times (format 2) or neither (format 1)")
+        rows = len(joint_times) if joint_times is not None else len(frames)
+        if positions.shape != (rows, len(joint_names)):
+            raise InvalidInputError(f"positions must be ({rows}, {len(joint_names)}), got {positions.shape}")
+        if frame_times is not None and len(frame_times) != len(frames):
+            raise InvalidInputError(f"{len(frame_times)} frame times for {len(frames)} frames")
         d = self.tmp / "motions" / f"{self.n_motions:03d}"
         d.mkdir()
         with (d / "joints.csv").open("w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["frame", *joint_names])
+            w.writerow(["t" if timed else "frame", *joint_names])
             for k, row in enumerate(positions):
-                w.writerow([k, *(repr(float(v)) for v in row)])
+                first = repr(float(joint_times[k])) if joint_times is not None else k
+                w.writerow([first, *(repr(float(v)) for v in row)])
+        if frame_times is not None:
+            with (d / FRAMES_CSV).open("w", newline="") as f:
+                w = csv.writer(f)
+                w.writerow(["frame", "t"])
+                w.writerows([k, repr(float(t))] for k, t in enumerate(frame_times))
         if self.video:
             write_video(d / VIDEO_NAME, frames, self.fps)
         else:
@@ -562,6 +685,7 @@ def write_video(path: Path, frames: Sequence[ImageArray], fps: float = 30.0) -> 
 
 __all__ = [
     "FORMAT_VERSION",
+    "FRAMES_CSV",
     "MIN_MOTIONS",
     "JOINT_RANGE_SLACK_RAD",
     "MOVING_THRESHOLD_RAD",

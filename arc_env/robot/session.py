@@ -573,7 +573,7 @@ def unusable_reason(run: CalibrationRun, criteria: UsableCriteria) -> str:
                 "in the images: is the robot in view?)")
     why = state_unusable_reason(run.calibrator.state, run.n_accepted, criteria)
     if not why and run.focal_check is not None and not run.focal_check.fits:
-        where = f" ({run.recording.path / 'camera.json'})" if run.recording is not None else ""
+        where = f" ({run.recording.camera_source})" if run.recording is not None else ""
         why = run.focal_check.message + where
     return why
 

@@ -16,20 +16,32 @@ The frames are rendered at the true positions; the swept joint's logged position
 L times its velocity (the sweep's per-frame step times the frame rate, at most ``EnvConfig.joint_speed``),
 the same shift at every frame (the sweep is modelled at constant speed from its first frame to its last).
 L < 0 is a log that leads the camera. The other joints stand still, so their readings are unaffected.
+
+``--format bag|mcap`` (``record_bag``): the episode as one continuous ROS 2 bag (sqlite3 or MCAP storage,
+the rosbags writer, ``arc_env.robot.bag.BagWriter``), as a rig's ``ros2 bag record`` would store it: the
+arm rests, transits to each motion's Q along the env's executed transit (its waypoints joined at
+``TRANSIT_SPEED``, several joints at once), rests ``REST_S``, turns J by Delta at ``EnvConfig.joint_speed``,
+rests again. The camera (``camera_info`` once, then images stamped with their exposure time, rgb8 or JPEG)
+runs at ``fps`` throughout, transits included; ``/joint_states`` at ``joint_hz`` on its own clock, stamped
+``joint_latency_s`` late: a joint sample of true time t carries the stamp t + L, so the time offset of
+``arc_env.robot.timing`` is d = L. Frames are rendered at the true configuration of their exposure time
+(clean camera only). Beside the bag: ``<out>.ground_truth.json`` and the robot model in ``<out>.robot/``.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from arc_env.robot.bag import BagWriter
 from arc_env.robot.exports import write_files_atomic
 from arc_env.robot.model import RobotSource
-from arc_env.robot.recording import RecordingWriter
+from arc_env.robot.recording import RecordingWriter, write_robot_model
 from arc_env.sim.distortion import Distorter
 from arc_env.sim.env import ArcCalibEnv, EnvConfig
 from arc_env.sim.imaging import realism_settings
@@ -42,6 +54,21 @@ from solver.observations import CameraIntrinsics
 
 #: Largest joint-log latency ``record`` simulates, s (real rigs are off by milliseconds to a few hundred).
 MAX_JOINT_LATENCY_S = 1.0
+#: What ``record`` writes: a recording directory (format 1), a ROS 2 bag with sqlite3 or with MCAP storage.
+FORMATS = ("dir", "bag", "mcap")
+#: rad/s: the fastest joint's speed along a transit in a bag (a transit takes at least ``MIN_TRANSIT_S``).
+TRANSIT_SPEED = 1.0
+MIN_TRANSIT_S = 0.3
+#: s: the arm rests this long before and after each exploratory motion in a bag.
+REST_S = 0.4
+#: s: the camera clock's reading when a bag starts (any epoch; this one looks like ROS time in 2023).
+BAG_EPOCH_S = 1_700_000_000.0
+
+
+def robot_dir_path(bag: Path) -> Path:
+    """Where ``record --format bag|mcap`` puts the robot model of a bag: ``<bag>.robot/`` beside it."""
+    bag = Path(bag)
+    return bag.with_name(bag.name + ".robot")
 
 
 def ground_truth_path(recording: Path) -> Path:
@@ -74,6 +101,9 @@ class RecordSettings:
         appearance: the robot's surface (None: the realism's default).
         joint_latency_s: how late the joint log is stamped relative to the camera, s (< 0: early); the
             logged positions of the sweeping joint lag the frames by this times its velocity. 0: exact.
+        format: "dir" (a recording, format 1), "bag" (ROS 2, sqlite3) or "mcap" (ROS 2, MCAP).
+        image_encoding: a bag's images: "rgb8" (sensor_msgs/Image) or "jpeg" (CompressedImage).
+        joint_hz: a bag's joint_states rate, Hz.
     """
 
     out: Path
@@ -89,8 +119,17 @@ class RecordSettings:
     realism: str = "clean"
     appearance: str | None = None
     joint_latency_s: float = 0.0
+    format: str = "dir"
+    image_encoding: str = "jpeg"
+    joint_hz: float = 200.0
 
     def __post_init__(self) -> None:
+        if self.format not in FORMATS:
+            raise InvalidInputError(f"--format must be one of {FORMATS}, got {self.format!r}")
+        if self.image_encoding not in ("rgb8", "jpeg"):
+            raise InvalidInputError(f"--image-encoding must be rgb8 or jpeg, got {self.image_encoding!r}")
+        if not np.isfinite(self.joint_hz) or self.joint_hz <= 0:
+            raise InvalidInputError(f"the joint rate must be > 0 Hz, got {self.joint_hz}")
         if not np.isfinite(self.joint_latency_s) or abs(self.joint_latency_s) > MAX_JOINT_LATENCY_S:
             raise InvalidInputError(f"the joint latency must be within +-{MAX_JOINT_LATENCY_S * 1e3:.0f} ms, "
                                     f"got {self.joint_latency_s * 1e3} ms")
@@ -109,8 +148,13 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
         raise InvalidInputError("--motions must be >= 1")
     out = Path(s.out)
     truth_path = ground_truth_path(out)
-    if out.exists() or truth_path.exists():
-        raise InvalidInputError(f"{out if out.exists() else truth_path}: already exists; choose a new directory")
+    beside = [out, truth_path] + ([robot_dir_path(out)] if s.format != "dir" else [])
+    for path in beside:
+        if path.exists():
+            raise InvalidInputError(f"{path}: already exists; choose a new directory")
+    if s.format != "dir" and (s.realism != "clean" or s.appearance is not None):
+        raise InvalidInputError("--format bag/mcap renders the clean camera only (no --realism realistic or "
+                                "--appearance yet)")
     fx = s.fx if s.fx is not None else 1380.0 * s.width / 1920.0
     target = CameraIntrinsics(K=CameraIntrinsics.from_fov(fx, s.width, s.height).K, dist=np.asarray(s.dist),
                               width=s.width, height=s.height)
@@ -124,6 +168,8 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
     try:
         obs, _ = env.reset(seed=s.seed)
         planner = RandomPlanner(env.session, np.random.default_rng(s.seed))
+        if s.format != "dir":
+            return _record_bag(s, env, planner, obs, target, distorter, on_motion)
         writer = RecordingWriter(out, target, s.robot, video=s.video, fps=env.config.fps)
         names = env.scene.robot.joint_names
         for _ in range(s.motions):
@@ -164,3 +210,106 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
         if writer is not None:
             writer.abort()
         env.close()
+
+
+def _bag_script(s: RecordSettings, env: ArcCalibEnv, planner: RandomPlanner, obs: dict,
+                on_motion: Callable[[str], None] | None) -> tuple[FloatArray, FloatArray, list[dict]]:
+    """Execute the motions in the env; the arm's piecewise-linear trajectory as knots (time s (K,), q (K, n) rad).
+
+    Returns the knots and, per motion, its joint, Delta and the times its turn starts and stops (s).
+    """
+    names = env.scene.robot.joint_names
+    times: list[float] = []
+    qs: list[FloatArray] = []
+    script: list[dict] = []
+    for _ in range(s.motions):
+        action = planner.plan(obs)
+        obs, _, _, _, info = env.step(action)
+        if info["refused"]:
+            raise ArcCalibError(f"the env refused the planner's motion: {info['refused']}")
+        q, joint, delta = np.asarray(action["Q"], float), int(action["J"]), float(action["delta"][0])
+        transit = env.session.last_transit
+        path = np.asarray(transit.waypoints, float) if transit is not None else np.array([q])
+        if not times:  # the arm rests where it starts
+            times += [0.0, REST_S]
+            qs += [path[0], path[0]]
+        for a, b in zip([qs[-1], *path[:-1]], path, strict=True):
+            step = float(np.max(np.abs(b - a)))
+            if step > 0:
+                times.append(times[-1] + max(step / TRANSIT_SPEED, MIN_TRANSIT_S))
+                qs.append(b)
+        times.append(times[-1] + REST_S)
+        qs.append(q)
+        end = q.copy()
+        end[joint] += delta
+        start = times[-1]
+        times.append(start + abs(delta) / env.config.joint_speed)
+        qs.append(end)
+        script.append({"joint": names[joint], "delta": delta, "t_start": start, "t_stop": times[-1]})
+        times.append(times[-1] + REST_S)
+        qs.append(end)
+        if on_motion is not None:
+            on_motion(f"planned: joint {names[joint]}, delta {delta:+.2f} rad")
+    return np.asarray(times), np.asarray(qs), script
+
+
+def _record_bag(s: RecordSettings, env: ArcCalibEnv, planner: RandomPlanner, obs: dict, target: CameraIntrinsics,
+                distorter: Distorter | None, on_motion: Callable[[str], None] | None) -> dict:
+    """``record_episode`` for ``format`` bag or mcap (the module doc); returns the ground truth dict."""
+    out = Path(s.out)
+    knots_t, knots_q, script = _bag_script(s, env, planner, obs, on_motion)
+    names = env.scene.robot.joint_names
+
+    def q_at(t: FloatArray) -> FloatArray:
+        return np.column_stack([np.interp(t, knots_t, knots_q[:, j]) for j in range(knots_q.shape[1])])
+
+    def ns(t: float) -> int:
+        return int(round((BAG_EPOCH_S + t) * 1e9))
+
+    frame_t = np.arange(0.0, knots_t[-1], 1.0 / s.fps)
+    joint_t = np.arange(0.0, knots_t[-1], 1.0 / s.joint_hz)
+    frame_q, joint_q = q_at(frame_t), q_at(joint_t)
+    joint_v = np.gradient(joint_q, joint_t, axis=0)
+    events = sorted([(ns(t), 0, k) for k, t in enumerate(frame_t)]
+                    + [(ns(t + s.joint_latency_s), 1, k) for k, t in enumerate(joint_t)])
+    robot_dir = robot_dir_path(out)
+    writer: BagWriter | None = None
+    try:
+        model_name, base = write_robot_model(s.robot, robot_dir)
+        writer = BagWriter(out, "mcap" if s.format == "mcap" else "sqlite3", s.image_encoding)
+        writer.camera_info(ns(0.0), target)
+        for stamp, kind, k in events:
+            if kind == 1:
+                writer.joints(stamp, names, joint_q[k], joint_v[k])
+                continue
+            env.scene.robot.set_q(frame_q[k])
+            image = env.scene.render()
+            writer.image(stamp, distorter(image) if distorter else image)
+        writer.close()
+        writer = None
+        T_camera_base = env.T_camera_base_true
+        truth = {
+            "note": "simulation ground truth of the bag beside this file; not part of the bag",
+            "recording": out.name,
+            "format": s.format,
+            "T_camera_base": T_camera_base.tolist(),
+            "translation": T_camera_base[:3, 3].tolist(),
+            "quaternion_xyzw": quaternion_xyzw_from_matrix(T_camera_base[:3, :3]).tolist(),
+            "seed": s.seed,
+            "motions": s.motions,
+            "robot": s.robot.path or "gymnasium-robotics Franka Panda",
+            "robot_model": str(robot_dir / model_name),
+            "base_body": base,
+            "joint_latency_s": s.joint_latency_s,
+            "time_offset_s": s.joint_latency_s,
+            "camera_epoch_s": BAG_EPOCH_S,
+            "script": script,
+        }
+        write_files_atomic({ground_truth_path(out): json.dumps(truth, indent=2) + "\n"})
+        return truth
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        shutil.rmtree(out, ignore_errors=True)
+        shutil.rmtree(robot_dir, ignore_errors=True)
+        raise

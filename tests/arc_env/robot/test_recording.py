@@ -47,9 +47,9 @@ def copy(tiny, tmp_path):
     return dst
 
 
-def _calibrate_fails(rec, tmp_path, capsys, code, *needles):
+def _calibrate_fails(rec, tmp_path, capsys, code, *needles, extra=()):
     out = tmp_path / "result.json"
-    assert main(["calibrate", str(rec), "--output", str(out), "--quiet"]) == code
+    assert main(["calibrate", str(rec), "--output", str(out), "--quiet", *extra]) == code
     captured = capsys.readouterr()
     text = captured.err + captured.out
     for needle in needles:
@@ -319,3 +319,84 @@ def test_robot_model_with_relative_meshes_is_copied_self_contained(tmp_path):
 
     model = mujoco.MjModel.from_xml_path(str(tmp_path / "robot" / name))
     assert base == "b" and model.nmesh == 1 and model.joint("j").id == 0
+
+
+# -- format 2: exposure times and a joint series on its own clock ------------------------------------
+T0 = 100.0  #: s, the camera clock when the first frame is exposed
+JOINT_HZ = 200.0
+
+
+def _to_format_2(motion_dir, latency_s=0.0, fps=TINY["fps"]):
+    """Rewrite a format 1 motion as format 2: frames.csv at fps, joints at 200 Hz stamped latency_s late.
+
+    The per-frame rows of the recorder are a constant-speed sweep, so the joint samples between them are
+    the linear interpolation of the rows (exact, no model error). Returns the frame times and per-frame rows.
+    """
+    header, rows = read_joints_csv(motion_dir / "joints.csv")
+    rows = np.array(rows)[:, 1:]
+    t_frames = T0 + np.arange(len(rows)) / fps
+    t_true = np.arange(t_frames[0] - 0.1, t_frames[-1] + 0.1, 1 / JOINT_HZ)
+    samples = np.column_stack([np.interp(t_true, t_frames, rows[:, j]) for j in range(rows.shape[1])])
+    with (motion_dir / "frames.csv").open("w") as f:
+        f.write("frame,t\n" + "".join(f"{k},{float(t)!r}\n" for k, t in enumerate(t_frames)))
+    with (motion_dir / "joints.csv").open("w") as f:
+        f.write(",".join(["t", *header[1:]]) + "\n")
+        for t, s in zip(t_true, samples, strict=True):
+            f.write(",".join(repr(float(v)) for v in [t + latency_s, *s]) + "\n")
+    return t_frames, rows
+
+
+def test_format_2_reads_joints_at_the_exposures_and_honours_the_time_offset(copy):
+    latency = 0.05
+    expected = {}
+    for m in ("000", "001", "002", "003"):
+        expected[m] = _to_format_2(copy / "motions" / m, latency)
+    late = read_recording(copy)  # offset not given: deltas lag by latency * speed
+    exact = read_recording(copy, time_offset_s=latency)
+    assert exact.time_offset_s == latency
+    for a, b in zip(late.motions, exact.motions, strict=True):
+        t_frames, rows = expected[b.name]
+        np.testing.assert_allclose(b.times, t_frames)
+        np.testing.assert_allclose(b.delta, rows[:, b.joint] - rows[0, b.joint], atol=1e-9)
+        np.testing.assert_allclose(b.q_start, rows[0], atol=1e-9)
+        speed = (rows[-1, b.joint] - rows[0, b.joint]) / (t_frames[-1] - t_frames[0])
+        np.testing.assert_allclose(b.joint_velocity[1:-1], speed, atol=1e-6)  # the ends: the sweep's corners
+        # without the offset every frame after the first (still at rest then) reads latency * speed too early
+        late_delta = rows[1:, b.joint] - latency * speed - rows[0, b.joint]
+        np.testing.assert_allclose(a.delta[1:], late_delta, atol=1e-9)
+
+
+def test_format_2_calibrate_reads_a_time_offset_and_format_1_refuses_one(copy, tmp_path, capsys):
+    _calibrate_fails(copy, tmp_path, capsys, 2, "a time offset needs time stamps", "format 1",
+                     extra=["--time-offset", "0.02"])
+
+
+@pytest.mark.parametrize(("edit", "needles"), [
+    ("frames_missing", ["frames.csv: missing", "needs frames.csv"]),
+    ("nan_time", ["joints.csv line 5: t is NaN"]),
+    ("duplicate_time", ["joints.csv line 5: t = ", "repeats the previous row"]),
+    ("backwards_time", ["frames.csv line 3: t = ", "earlier than the previous row"]),
+    ("outside_span", ["outside the joint samples' span", "never extrapolated"]),
+    ("frames_csv_with_format_1", ["frames.csv: exposure times need a joints.csv with a t column"]),
+], ids=lambda v: v if isinstance(v, str) else "")
+def test_bad_format_2_motions_are_named(copy, tmp_path, capsys, edit, needles):
+    motion = copy / "motions" / "002"
+    if edit == "frames_csv_with_format_1":
+        (motion / "frames.csv").write_text("frame,t\n0,0.0\n")
+    else:
+        _to_format_2(motion)
+    joints, frames = (motion / "joints.csv").read_text().splitlines(), (motion / "frames.csv").read_text().splitlines()
+    if edit == "frames_missing":
+        (motion / "frames.csv").unlink()
+    elif edit in ("nan_time", "duplicate_time"):
+        cells = joints[4].split(",")
+        cells[0] = "nan" if edit == "nan_time" else joints[3].split(",")[0]
+        joints[4] = ",".join(cells)
+    elif edit == "backwards_time":
+        frames[2] = "1,0.0"
+    elif edit == "outside_span":
+        frames[-1] = f"{len(frames) - 2},{T0 + 60!r}"
+    if edit != "frames_missing":
+        (motion / "joints.csv").write_text("\n".join(joints) + "\n")
+        (motion / "frames.csv").write_text("\n".join(frames) + "\n")
+    _calibrate_fails(copy, tmp_path, capsys, 2, *needles)
