@@ -102,7 +102,7 @@ class CameraIntrinsics:
 
 @dataclass(frozen=True)
 class KeypointTrack:
-    """One keypoint followed through consecutive frames of a motion.
+    """One keypoint followed through frames of a motion (in frame order; a track may skip frames).
 
     Attributes:
         pixels: (M, 2) float64, pixels: the keypoint's image position in each frame (finite, within

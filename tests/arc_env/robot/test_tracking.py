@@ -13,7 +13,7 @@ from __future__ import annotations
 import subprocess
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -468,3 +468,30 @@ def test_tracking_never_imports_mujoco():
     code = "import sys, arc_env.robot.tracking; print('mujoco' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_a_track_lost_for_a_frame_is_found_again(rng):
+    """Noise over the plate's left half in one frame: LK loses those tracks there; refind_frames brings them back."""
+    sweep = in_plane_sweep(rng)
+    bad, edge = 25, int(PLATE_CENTRE[0])
+    frames = list(sweep.frames)
+    frames[bad] = frames[bad].copy()
+    frames[bad][:, :edge] = rng.integers(0, 256, (SIZE[0], edge), dtype=np.uint8)
+    base = TrackerConfig(max_corners=200, min_distance_px=7.0, redetect_every=0)
+    ended = track_keypoints(frames, sweep.delta, base)
+    found = track_keypoints(frames, sweep.delta, replace(base, refind_frames=3))
+    assert_counts_add_up(found)
+
+    def crossing_the_noise(result: TrackingResult) -> list[KeypointTrack]:
+        """Tracks that were in the noisy half just before the bad frame and go on after it."""
+        return [t for t in result.tracks if sweep.delta[bad - 1] in t.delta and t.delta[-1] > sweep.delta[bad]
+                and t.pixels[list(t.delta).index(sweep.delta[bad - 1]), 0] < edge - 15]
+
+    assert crossing_the_noise(ended) == []
+    back = crossing_the_noise(found)
+    assert len(back) >= 15
+    for t in back:  # found again one frame later, following the same point
+        assert sweep.delta[bad] not in t.delta and len(t) == N_FRAMES - 1
+        assert track_errors(t, sweep).max() < MAX_TOL_PX
+    with pytest.raises(InvalidInputError, match="refind_frames"):
+        TrackerConfig(refind_frames=-1)
