@@ -43,8 +43,9 @@ def main(argv: list[str] | None = None) -> int:
                       help="synthetic Panda kinematics and keypoints, no rendering (solver only)")
     demo.add_argument("--motions", type=int, default=25, help="motion budget (default 25)")
     demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    demo.add_argument("--robot", help="robot MJCF or URDF file (default: the gymnasium-robotics Panda)")
-    demo.add_argument("--base-body", help="the robot's base body (required with --robot)")
+    demo.add_argument("--robot", help="a robot of the library (panda, iiwa, xarm6) or an MJCF or URDF file "
+                                            "(default: the gymnasium-robotics Panda)")
+    demo.add_argument("--base-body", help="the robot's base body (required with a model file)")
     demo.add_argument("--width", type=int, default=1920, help="image width, px (default 1920)")
     demo.add_argument("--height", type=int, default=1080, help="image height, px (default 1080)")
     demo.add_argument("--oracle", action="store_true",
@@ -72,8 +73,9 @@ def main(argv: list[str] | None = None) -> int:
     record.add_argument("--video", action="store_true", help="one MP4 per motion instead of PNG frames")
     record.add_argument("--fps", type=float, default=30.0,
                         help="frame rate, Hz; joints turn at 1 rad/s (default 30)")
-    record.add_argument("--robot", help="robot MJCF or URDF file (default: the gymnasium-robotics Panda)")
-    record.add_argument("--base-body", help="the robot's base body (required with --robot)")
+    record.add_argument("--robot", help="a robot of the library (panda, iiwa, xarm6) or an MJCF or URDF file "
+                                            "(default: the gymnasium-robotics Panda)")
+    record.add_argument("--base-body", help="the robot's base body (required with a model file)")
     record.add_argument("--joint-latency-ms", type=float, default=0.0, metavar="MS",
                         help="stamp the joint log this late relative to the camera (negative: early), as a rig "
                              "whose joint_states clock disagrees with the camera's; default 0")

@@ -15,7 +15,7 @@ import numpy as np
 
 from arc_env.cli.progress import Progress
 from arc_env.robot.exports import write_files_atomic
-from arc_env.robot.model import RobotSource
+from arc_env.robot.library import robot_from_arguments
 from arc_env.robot.overlay import draw_overlay, mask_iou
 from arc_env.sim.env import ArcCalibEnv, EnvConfig
 from arc_env.sim.imaging import realism_settings
@@ -27,7 +27,6 @@ from solver import (
     PANDA,
     ArcCalibError,
     Calibrator,
-    InvalidInputError,
     SyntheticConfig,
     SyntheticScene,
     d415_intrinsics,
@@ -40,9 +39,7 @@ from solver.frames import quaternion_xyzw_from_matrix
 
 def run_demo(args: argparse.Namespace) -> int:
     """Run the episode described by the parsed ``arc-calib demo`` arguments; returns the exit code."""
-    if args.robot and not args.base_body:
-        raise InvalidInputError("--robot needs --base-body (the body whose frame is the robot's base)")
-    robot = RobotSource(path=args.robot, base_body=args.base_body, home=()) if args.robot else RobotSource()
+    robot = robot_from_arguments(args.robot, args.base_body)
     scene = SceneConfig(robot=robot, width=args.width, height=args.height,
                         **realism_settings(args.realism, args.appearance))
     config = EnvConfig(scene=scene, max_motions=args.motions, oracle_keypoints=args.oracle,

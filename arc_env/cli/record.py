@@ -9,17 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from arc_env.cli.progress import Progress
-from arc_env.robot.model import RobotSource
+from arc_env.robot.library import robot_from_arguments
 from arc_env.sim.distortion import parse_dist
 from arc_env.sim.record import RecordSettings, ground_truth_path, record_episode
-from solver.errors import InvalidInputError
 
 
 def run_record(args: argparse.Namespace) -> int:
     """``arc-calib record`` from parsed arguments; returns the exit code."""
-    if args.robot and not args.base_body:
-        raise InvalidInputError("--robot needs --base-body (the body whose frame is the robot's base)")
-    robot = RobotSource(path=args.robot, base_body=args.base_body, home=()) if args.robot else RobotSource()
+    robot = robot_from_arguments(args.robot, args.base_body)
     dist = tuple(parse_dist(args.dist)) if args.dist else ()
     settings = RecordSettings(out=Path(args.out), motions=args.motions, seed=args.seed, width=args.width,
                               height=args.height, fx=args.fx, dist=dist, video=args.video, fps=args.fps,

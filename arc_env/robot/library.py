@@ -77,6 +77,32 @@ def library_robot(name: str) -> RobotSource:
     raise InvalidInputError(f"unknown robot {name!r}; valid: {', '.join(ROBOT_NAMES)}")
 
 
+def robot_from_arguments(robot: str | None, base_body: str | None) -> RobotSource:
+    """The robot a command line names: a library name (``ROBOT_NAMES``), a model file, or the default.
+
+    Args:
+        robot: None (the default Panda), a name of ``ROBOT_NAMES`` (when no such file exists and no base
+            body is given), or an MJCF/URDF file path, which needs ``base_body``.
+        base_body: the body whose frame is the robot's base, for a model file.
+
+    Raises:
+        InvalidInputError: a model file without a base body, or a base body with a library name.
+    """
+    if robot is None:
+        if base_body:
+            raise InvalidInputError("--base-body needs --robot (a model file)")
+        return RobotSource()
+    if robot in ROBOT_NAMES and not Path(robot).exists():
+        if base_body:
+            raise InvalidInputError(f"--base-body is for a model file; the library's {robot!r} knows its own base")
+        return library_robot(robot)
+    if not base_body:
+        raise InvalidInputError(f"--robot {robot!r} is not one of the library's robots ({', '.join(ROBOT_NAMES)}), "
+                                "so it is a model file and needs --base-body (the body whose frame is the robot's "
+                                "base)")
+    return RobotSource(path=robot, base_body=base_body, home=())
+
+
 def parse_robot_names(text: str) -> tuple[str, ...]:
     """A comma-separated list of robot names (e.g. a ``--robots`` argument), checked, in order, no repeats.
 

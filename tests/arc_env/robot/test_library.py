@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from arc_env.bench.poses import benchmark_camera_pose, benchmark_view
 from arc_env.robot import library
-from arc_env.robot.library import ROBOT_NAMES, library_robot, parse_robot_names
+from arc_env.robot.library import ROBOT_NAMES, library_robot, parse_robot_names, robot_from_arguments
 from arc_env.robot.model import RobotSource
 from arc_env.sim.scene import Scene, SceneConfig
 from planners.collision import CollisionChecker
@@ -145,3 +145,16 @@ def test_a_missing_package_is_named(monkeypatch):
                         lambda name, *a: None if name == "pybullet_data" else real(name, *a))
     with pytest.raises(InvalidInputError, match=r"pip install pybullet"):
         library_robot("iiwa")
+
+
+def test_a_command_line_names_a_library_robot_or_a_model_file(tmp_path):
+    assert robot_from_arguments(None, None) == RobotSource()
+    assert robot_from_arguments("iiwa", None) == library_robot("iiwa")
+    model = tmp_path / "arm.xml"
+    assert robot_from_arguments(str(model), "base") == RobotSource(path=str(model), base_body="base", home=())
+    with pytest.raises(InvalidInputError, match="needs --base-body"):
+        robot_from_arguments(str(model), None)
+    with pytest.raises(InvalidInputError, match="knows its own base"):
+        robot_from_arguments("xarm6", "link_base")
+    with pytest.raises(InvalidInputError, match="needs --robot"):
+        robot_from_arguments(None, "base")
