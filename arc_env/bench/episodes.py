@@ -81,7 +81,9 @@ class EpisodeSpec:
         width: image width, px.
         height: image height, px.
         oracle: projected mesh points instead of rendering and tracking (ARC-Calib methods only).
-        realism: "clean" (today's renders) or "realistic" camera and robot (``arc_env.sim.imaging``).
+        realism: "clean" (today's renders) or "realistic" camera and robot (``arc_env.sim.imaging``); the
+            realistic robot's labels, screws, seams and cables are placed with the episode's seed
+            (``SceneConfig.appearance_seed = rng_seed``), so each episode's robot looks different.
         appearance: the robot's surface; None: the realism's default ("painted" clean, "realistic" realistic).
         robot: the robot, a name of ``arc_env.robot.library.ROBOT_NAMES``; the cameras are the benchmark
             poses scaled to it (``arc_env.bench.poses.benchmark_view``). Part of ``key`` only when not
@@ -201,6 +203,7 @@ def _make_env(spec: EpisodeSpec, board: bool = False):  # noqa: ANN202  (ArcCali
 
     config = EnvConfig(scene=SceneConfig(robot=library_robot(spec.robot), width=spec.width, height=spec.height,
                                          marker_board=MarkerBoard() if board else None,
+                                         appearance_seed=spec.rng_seed,
                                          **realism_settings(spec.realism, spec.appearance)),
                        max_motions=spec.motions, oracle_keypoints=spec.oracle, terminate_on_convergence=False)
     env = ArcCalibEnv(config)
