@@ -24,6 +24,7 @@ from solver.errors import (
     DegenerateTrajectoryError,
     InsufficientMotionsError,
     InvalidInputError,
+    TimeOffsetError,
     UnobservablePoseError,
 )
 from solver.frames import (
@@ -76,6 +77,7 @@ __all__ = [
     "SyntheticConfig",
     "SyntheticMotion",
     "SyntheticScene",
+    "TimeOffsetError",
     "UnobservablePoseError",
     "build_track_set",
     "check_observable",

@@ -25,3 +25,7 @@ class InsufficientMotionsError(ArcCalibError):
 
 class UnobservablePoseError(ArcCalibError):
     """The accepted motions cannot fix all six degrees of freedom of T_camera_base."""
+
+
+class TimeOffsetError(ArcCalibError):
+    """The joint and camera clocks disagree by more than the bundle adjustment may estimate."""

@@ -109,10 +109,15 @@ class KeypointTrack:
             ``MAX_PIXEL_MAGNITUDE``).
         delta: (M,) float64, radians: how far the moving joint had turned from its start value
             at each of those frames (the paper's delta_{i,j,k}).
+        velocity: (M,) float64, rad/s: the moving joint's velocity at each of those frames (finite),
+            or None when unknown. The bundle adjustment uses it to estimate a time offset tau between
+            the joint clock and the camera clock: the turn at a frame is delta + velocity * tau
+            (``solver.refinement``).
     """
 
     pixels: FloatArray
     delta: FloatArray
+    velocity: FloatArray | None = None
 
     def __post_init__(self) -> None:
         pixels = np.asarray(self.pixels, dtype=np.float64)
@@ -125,6 +130,14 @@ class KeypointTrack:
             )
         _finite("track pixels", pixels)
         _finite("track delta", delta)
+        if self.velocity is not None:
+            velocity = np.asarray(self.velocity, dtype=np.float64).reshape(-1)
+            if velocity.shape[0] != pixels.shape[0]:
+                raise InvalidInputError(
+                    f"track has {pixels.shape[0]} pixel rows but {velocity.shape[0]} velocity values"
+                )
+            _finite("track velocity", velocity)
+            object.__setattr__(self, "velocity", velocity)
         if pixels.size and np.max(np.abs(pixels)) > MAX_PIXEL_MAGNITUDE:
             raise InvalidInputError(f"track pixels reach {np.max(np.abs(pixels)):g} px: beyond any image "
                                     f"(|pixel| <= {MAX_PIXEL_MAGNITUDE:g})")

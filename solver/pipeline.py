@@ -198,6 +198,10 @@ class CalibrationState:
         start: where the bundle adjustment that gave the refined pose started: "previous" (the last
             refined pose), "linear", "family" (a member of the motions' pose family:
             ``CalibratorConfig.family_start``), or "" (no refined pose).
+        time_offset_s: s, the time offset the bundle adjustment estimated between the joint and camera
+            clocks, on top of the one the joint values were read with (``solver.refinement``); None when
+            not estimated (``RefinementConfig.estimate_time_offset``) or no refined pose.
+        time_offset_std_s: s, its 1-sigma (the covariance's, like ``std``); None likewise.
     """
 
     T_camera_base: FloatArray | None
@@ -213,6 +217,8 @@ class CalibrationState:
     message: str
     seconds: dict[str, float] = field(default_factory=dict)
     start: Start = ""
+    time_offset_s: float | None = None
+    time_offset_std_s: float | None = None
 
 
 @dataclass
@@ -221,7 +227,8 @@ class _Motion:
     axis_base: FloatArray
     point_base: FloatArray
     geometry: MotionGeometry | None
-    tracks: list[tuple[FloatArray, FloatArray]]  # (uv normalized, delta) subsampled, moving only
+    # (uv normalized, delta rad, joint velocity rad/s or None) subsampled, moving only
+    tracks: list[tuple[FloatArray, FloatArray, FloatArray | None]]
     points: FloatArray | None = None  # (len(tracks), 3) last refined points, NaN where unknown
 
 
@@ -372,7 +379,8 @@ class Calibrator:
             tracks = []
             for t in moving:
                 idx = evenly_spaced(len(t), self.config.max_frames_per_track)
-                tracks.append((normalized_from_pixels(t.pixels[idx], self.intrinsics), t.delta[idx]))
+                tracks.append((normalized_from_pixels(t.pixels[idx], self.intrinsics), t.delta[idx],
+                               None if t.velocity is None else t.velocity[idx]))
             self._motions.append(_Motion(obs, axis, point, geometry, tracks))
         if update:
             self.update()
@@ -462,6 +470,8 @@ class Calibrator:
             message="" if T is not None else message,
             seconds={"linear": t_linear - t_start, "refined": t_refined - t_linear},
             start=start_kind if refined is not None else "",
+            time_offset_s=refined.time_offset_s if refined is not None else None,
+            time_offset_std_s=refined.time_offset_std_s if refined is not None else None,
         )
         return self.state
 
@@ -556,7 +566,7 @@ class Calibrator:
         for k in live:
             m = self._motions[k]
             tracks = []
-            for uv, delta in (m.tracks[j] for j in evenly_spaced(len(m.tracks), FAMILY_SCREEN_TRACKS)):
+            for uv, delta, _ in (m.tracks[j] for j in evenly_spaced(len(m.tracks), FAMILY_SCREEN_TRACKS)):
                 frames = evenly_spaced(len(delta), FAMILY_SCREEN_FRAMES)
                 tracks.append((uv[frames], delta[frames]))
             motions.append((m.axis_base, m.point_base, tracks))
@@ -588,7 +598,7 @@ class Calibrator:
         """The bundle adjustment's observations of motions ``live``, for focal lengths scaled by focal_scale."""
         motions = [(self._motions[k].axis_base, self._motions[k].point_base,
                     self._motions[k].tracks if focal_scale == 1.0 else
-                    [(uv / focal_scale, delta) for uv, delta in self._motions[k].tracks]) for k in live]
+                    [(uv / focal_scale, *rest) for uv, *rest in self._motions[k].tracks]) for k in live]
         return build_track_set(motions, self.intrinsics.focal * focal_scale, self.config.refinement.min_track_frames)
 
     def _warm_points(self, live: list[int]) -> FloatArray:

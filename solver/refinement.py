@@ -10,6 +10,16 @@ first a redescending Cauchy loss, then tracks whose RMS error stays far above th
 and a plain least-squares pass yields the estimate and its covariance (Gauss-Newton, Schur
 complement over the points, scaled by the residual variance, enlarged where a track-clustered
 sandwich estimate is larger).
+
+Time offset (ours, ``RefinementConfig.estimate_time_offset``): when every track carries the moving
+joint's velocity v at each frame, the adjustment can also estimate one scalar s (seconds) by which the
+joint clock is off from the camera clock, on top of any offset the joint values were already read with
+(the sign of ``arc_env.robot.timing``: d = t_joint - t_camera, so the joint value at an exposure is
+the series read s later). Each frame's turn becomes delta + v s (first order in s; the joint's
+acceleration over s is neglected), and x = (omega, tau, s, q_1..q_T). A Gaussian prior s ~ N(0,
+``time_offset_bound_s``^2) is one more residual; an estimate beyond the bound is refused
+(``TimeOffsetError``), not clipped. The covariance is the Gauss-Newton one over all of (omega, tau,
+s) with the points marginalized, so the pose's 1-sigma includes what s and the pose trade off.
 """
 
 from __future__ import annotations
@@ -25,7 +35,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from solver.arrays import FloatArray
-from solver.errors import InsufficientMotionsError, InvalidInputError
+from solver.errors import InsufficientMotionsError, InvalidInputError, TimeOffsetError
 from solver.frames import perturb, rotation_about_axis, skew
 
 IntArray = NDArray[np.int64]
@@ -50,6 +60,12 @@ class RefinementConfig:
             iterations and then creeps while outlier tracks' points drift; 1e-5 gives the same
             estimates as 1e-9 to 1e-6 rad / 1e-6 m on scripts/bench_solver.py at a third of the cost.
             The robust pass only classifies tracks; the final pass fixes the estimate.
+        estimate_time_offset: estimate the time offset s between the joint and camera clocks (the
+            module doc): True, False, or None (the default) for on exactly when every track carries
+            joint velocities (``TrackSet.velocity``).
+        time_offset_bound_s: s; the prior's 1-sigma, and the largest |s| accepted: beyond it the
+            clocks are too far apart for the first-order model (give the offset, e.g.
+            ``arc-calib calibrate --time-offset``).
     """
 
     cauchy_scale_px: float = 1.0
@@ -58,6 +74,12 @@ class RefinementConfig:
     max_nfev: int = 50
     min_track_frames: int = 4
     robust_ftol: float = 1e-5
+    estimate_time_offset: bool | None = None
+    time_offset_bound_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not self.time_offset_bound_s > 0:
+            raise InvalidInputError(f"time_offset_bound_s must be > 0 s, got {self.time_offset_bound_s}")
 
 
 @dataclass(frozen=True)
@@ -71,6 +93,10 @@ class TrackSet:
         pivot: (T, 3) float64, m: d_b of each track's motion (base frame).
         motion: (T,) int: motion index of each track.
         focal: (2,) float64, px: (fx, fy).
+        axis: (T, 3) float64: a_b of each track's motion (base frame, unit); None: not given.
+        delta: (P,) float64, rad: each observation's turn (``rot`` is Rot(a_b, delta)); None: not given.
+        velocity: (P,) float64, rad/s: the moving joint's velocity at each observation; None unless
+            every track carries one.
     """
 
     uv: FloatArray
@@ -79,6 +105,9 @@ class TrackSet:
     pivot: FloatArray
     motion: IntArray
     focal: FloatArray
+    axis: FloatArray | None = None
+    delta: FloatArray | None = None
+    velocity: FloatArray | None = None
 
     @property
     def n_tracks(self) -> int:
@@ -86,31 +115,42 @@ class TrackSet:
         return int(self.pivot.shape[0])
 
 
-def build_track_set(motions: Sequence[tuple[FloatArray, FloatArray, Sequence[tuple[FloatArray, FloatArray]]]],
+def build_track_set(motions: Sequence[tuple[FloatArray, FloatArray, Sequence[tuple[FloatArray, ...]]]],
                     focal: FloatArray, min_frames: int = 4) -> TrackSet:
     """Flatten motions into a TrackSet.
 
     Args:
         motions: per motion (axis_base (3,), point_base (3,) m, tracks), each track a pair
-            (uv (M, 2) normalized coordinates, delta (M,) rad).
+            (uv (M, 2) normalized coordinates, delta (M,) rad) or a triple with the joint's velocity
+            (M,) rad/s at each frame (None: unknown) last.
         focal: (2,) float64, px: (fx, fy), to express residuals in pixels.
         min_frames: shorter tracks are skipped.
     """
-    uv, track, rot, pivot, motion = [], [], [], [], []
+    uv, track, rot, pivot, motion, axes, deltas, velocity = [], [], [], [], [], [], [], []
+    every_velocity = True
     for i, (axis, point, tracks) in enumerate(motions):
-        kept = [(uv_j, delta_j) for uv_j, delta_j in tracks if uv_j.shape[0] >= min_frames]
+        kept = [t for t in tracks if t[0].shape[0] >= min_frames]
         if not kept:
             continue
-        for uv_j, _ in kept:
-            uv.append(uv_j)
-            track.append(np.full(uv_j.shape[0], len(pivot)))
+        for t in kept:
+            uv.append(t[0])
+            track.append(np.full(t[0].shape[0], len(pivot)))
             pivot.append(point)
             motion.append(i)
-        rot.append(rotation_about_axis(axis, np.concatenate([d for _, d in kept])))  # one call per motion
+            axes.append(axis)
+            v = t[2] if len(t) > 2 else None
+            every_velocity = every_velocity and v is not None
+            if every_velocity:
+                velocity.append(v)
+        turns = np.concatenate([t[1] for t in kept])
+        deltas.append(turns)
+        rot.append(rotation_about_axis(axis, turns))  # one call per motion
     if not pivot:
         raise InsufficientMotionsError("no track long enough to refine")
     return TrackSet(np.concatenate(uv), np.concatenate(track).astype(np.int64), np.concatenate(rot),
-                    np.array(pivot), np.array(motion, dtype=np.int64), np.asarray(focal, float))
+                    np.array(pivot), np.array(motion, dtype=np.int64), np.asarray(focal, float),
+                    np.array(axes, dtype=np.float64), np.concatenate(deltas),
+                    np.concatenate(velocity).astype(np.float64) if every_velocity else None)
 
 
 def triangulate_tracks(tracks: TrackSet, T_camera_base: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
@@ -156,57 +196,93 @@ def _left_jacobian(omega: FloatArray) -> FloatArray:
 
 
 class _Problem:
-    """Residuals and sparse Jacobian of the bundle adjustment over x = (omega, tau, q_1..q_T).
+    """Residuals and sparse Jacobian of the bundle adjustment over x = (omega, tau, [s,] q_1..q_T).
 
     Each track's unknown is q, its point in the camera frame at the start configuration (delta =
     0), not its base-frame point p0 = R^T (q - t): the frame-0 residual then does not depend on the
     pose, which decouples points from pose and makes the sparse normal equations far better
     conditioned for LSMR. The pose's marginal covariance is the same in either parameterization
     (the change of variables is block-triangular with an identity pose block).
+
+    With ``prior_weight`` (px per s) given, the time offset s (the module doc) is the 7th parameter
+    and one last residual prior_weight * s is its prior; the "pose" blocks below then span
+    (omega, tau, s). Without it the problem is the 6-parameter one, computed exactly as before.
     """
 
-    def __init__(self, tracks: TrackSet, T0: FloatArray):
+    def __init__(self, tracks: TrackSet, T0: FloatArray, prior_weight: float | None = None):
         self.tracks = tracks
         self.T0 = T0
-        P = tracks.uv.shape[0]
-        cols = np.empty((P, 2, 9), dtype=np.int64)
-        cols[:, :, :6] = np.arange(6)
-        cols[:, :, 6:] = (6 + 3 * tracks.track)[:, None, None] + np.arange(3)
-        self.cols = cols.ravel()  # CSR column indices: every row has the 6 pose entries and its point's 3
-        self.indptr = np.arange(0, 9 * 2 * P + 1, 9)
-        self.shape = (2 * P, 6 + 3 * tracks.n_tracks)
+        self.prior_weight = prior_weight
+        self.n_pose = 6 if prior_weight is None else 7
+        if prior_weight is not None and (tracks.velocity is None or tracks.axis is None or tracks.delta is None):
+            raise InvalidInputError("a time-offset estimate needs every track's joint velocity")
+        P, n = tracks.uv.shape[0], self.n_pose
+        cols = np.empty((P, 2, n + 3), dtype=np.int64)
+        cols[:, :, :n] = np.arange(n)
+        cols[:, :, n:] = (n + 3 * tracks.track)[:, None, None] + np.arange(3)
+        self.cols = cols.ravel()  # CSR column indices: every row has the pose entries and its point's 3
+        self.indptr = np.arange(0, (n + 3) * 2 * P + 1, n + 3)
+        self.shape = (2 * P, n + 3 * tracks.n_tracks)
+        if prior_weight is not None:  # the prior's row: the pose columns (only s's is non-zero unwhitened)
+            self.cols = np.concatenate([self.cols, np.arange(n)])
+            self.indptr = np.append(self.indptr, self.indptr[-1] + n)
+            self.shape = (2 * P + 1, self.shape[1])
+            self.obs_axis = tracks.axis[tracks.track]  # (P, 3): each observation's a_b
         self.obs_pivot = tracks.pivot[tracks.track]  # (P, 3) m: each observation's d_b
 
     def pose(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         """R (3, 3) and t (3,) at parameters x."""
         return Rotation.from_rotvec(x[:3]).as_matrix() @ self.T0[:3, :3], self.T0[:3, 3] + x[3:6]
 
-    def _camera_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    def rotations(self, x: FloatArray) -> FloatArray:
+        """(P, 3, 3): Rot(a_b, delta + v s) of each observation (the given ``rot`` without s)."""
+        tr = self.tracks
+        if self.prior_weight is None:
+            return tr.rot
+        return Rotation.from_rotvec(self.obs_axis * (tr.delta + tr.velocity * x[6])[:, None]).as_matrix()
+
+    def _camera_points(self, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
         tr = self.tracks
         R, t = self.pose(x)
-        q = x[6:].reshape(-1, 3)[tr.track]
+        rot = self.rotations(x)
+        q = x[self.n_pose:].reshape(-1, 3)[tr.track]
         y = (q - t) @ R  # R^T (q - t): the base-frame point at delta = 0
-        p_base = np.matmul(tr.rot, (y - self.obs_pivot)[:, :, None])[:, :, 0] + self.obs_pivot
-        return p_base @ R.T + t, R, t, q
+        p_base = np.matmul(rot, (y - self.obs_pivot)[:, :, None])[:, :, 0] + self.obs_pivot
+        return p_base @ R.T + t, R, t, q, rot
 
     def residuals(self, x: FloatArray) -> FloatArray:
-        """(2P,) float64, px: reprojection errors."""
+        """(2P,) float64, px: reprojection errors (then the prior's residual when s is estimated)."""
         pc = self._camera_points(x)[0]
-        return ((pc[:, :2] / pc[:, 2:] - self.tracks.uv) * self.tracks.focal).ravel()
+        r = ((pc[:, :2] / pc[:, 2:] - self.tracks.uv) * self.tracks.focal).ravel()
+        return r if self.prior_weight is None else np.append(r, self.prior_weight * x[6])
+
+    def csr(self, blocks: FloatArray, prior_row: FloatArray | None) -> sp.csr_matrix:
+        """The sparse Jacobian from the observations' blocks (P, 2, n_pose + 3) and the prior's row (n_pose,)."""
+        data = blocks.ravel() if prior_row is None else np.concatenate([blocks.ravel(), prior_row])
+        return sp.csr_matrix((data, self.cols, self.indptr), shape=self.shape)
+
+    def prior_row(self) -> FloatArray | None:
+        """(n_pose,): the prior residual's derivatives by the pose parameters (None without s)."""
+        if self.prior_weight is None:
+            return None
+        row = np.zeros(self.n_pose)
+        row[6] = self.prior_weight
+        return row
 
     def jacobian(self, x: FloatArray) -> sp.csr_matrix:
-        """(2P, 6 + 3T) sparse Jacobian of ``residuals``."""
-        return sp.csr_matrix((self.jacobian_blocks(x).ravel(), self.cols, self.indptr), shape=self.shape)
+        """(2P, n_pose + 3T) sparse Jacobian of ``residuals`` (one more row for the prior with s)."""
+        return self.csr(self.jacobian_blocks(x), self.prior_row())
 
     def jacobian_blocks(self, x: FloatArray) -> FloatArray:
-        """(P, 2, 9): each observation's derivatives by (omega, tau) and by its own track's point q.
+        """(P, 2, n_pose + 3): each observation's derivatives by (omega, tau[, s]) and by its track's point q.
 
         With D the (2, 3) derivative of the pixel by the camera point and M = R Rot_k R^T, the
         camera point's derivatives are -[pc - t]x + M [q - t]x by omega (times the left Jacobian of
-        SO(3)), I - M by tau and M by q; a row v of D times [a]x is v x a.
+        SO(3)), I - M by tau and M by q; a row v of D times [a]x is v x a. By s: v R (a_b x
+        (p_base - d_b)), the turn's rate times the point's velocity about the axis.
         """
         tr = self.tracks
-        pc, R, t, q = self._camera_points(x)
+        pc, R, t, q, rot = self._camera_points(x)
         P = pc.shape[0]
         inv_z = 1.0 / pc[:, 2]
         D = np.zeros((P, 2, 3))
@@ -214,11 +290,15 @@ class _Problem:
         D[:, 1, 1] = tr.focal[1] * inv_z
         D[:, 0, 2] = -tr.focal[0] * pc[:, 0] * inv_z**2
         D[:, 1, 2] = -tr.focal[1] * pc[:, 1] * inv_z**2
-        DM = np.matmul((D.reshape(2 * P, 3) @ R).reshape(P, 2, 3), tr.rot).reshape(2 * P, 3) @ R.T  # D M
+        DM = np.matmul((D.reshape(2 * P, 3) @ R).reshape(P, 2, 3), rot).reshape(2 * P, 3) @ R.T  # D M
         DM = DM.reshape(P, 2, 3)
         d_omega = np.cross(DM, (q - t)[:, None, :]) - np.cross(D, (pc - t)[:, None, :])
         d_omega = (d_omega.reshape(2 * P, 3) @ _left_jacobian(x[:3])).reshape(P, 2, 3)
-        return np.concatenate([d_omega, D - DM, DM], axis=2)
+        if self.prior_weight is None:
+            return np.concatenate([d_omega, D - DM, DM], axis=2)
+        arm = (pc - t) @ R - self.obs_pivot  # p_base - d_b
+        d_s = np.cross(self.obs_axis, arm) @ R.T * tr.velocity[:, None]  # (P, 3): camera point by s
+        return np.concatenate([d_omega, D - DM, np.einsum("pij,pj->pi", D, d_s)[:, :, None], DM], axis=2)
 
 
 @dataclass(frozen=True)
@@ -238,6 +318,11 @@ class RefinementResult:
         track_inliers: (T,) bool: tracks kept after the robust pass.
         rms_px: RMS reprojection error of the kept tracks, px.
         sigma_px: estimated pixel noise (per coordinate) from the kept residuals.
+        time_offset_s: the estimated time offset s (the module doc), s; None when not estimated.
+        time_offset_std_s: its 1-sigma, s, from the same covariance as the pose's (whose
+            ``covariance`` is then the pose block of the (7, 7) one: s marginalized); None likewise.
+        time_offset_correlation: (6,) the correlation of s with each of (omega, tau) in that
+            covariance; None likewise. Near +-1 the tracks cannot tell s from a pose change.
     """
 
     T_camera_base: FloatArray
@@ -246,14 +331,18 @@ class RefinementResult:
     track_inliers: NDArray[np.bool_]
     rms_px: float
     sigma_px: float
+    time_offset_s: float | None = None
+    time_offset_std_s: float | None = None
+    time_offset_correlation: FloatArray | None = None
 
 
 class _Whitened:
     """A ``_Problem`` in block-whitened coordinates z about x0: x = x0 + A z.
 
-    A is block diagonal: the pose's (6, 6) block and each track's (3, 3) block are L^-T for the
-    Cholesky factor L of that block of J^T J at x0. Then J^T J in z has identity diagonal blocks
-    for the points, so J^T J - I has rank at most 12 (the pose's coupling) and LSMR converges in
+    A is block diagonal: the pose's (6, 6) block (with the time offset (7, 7), the prior's row
+    included) and each track's (3, 3) block are L^-T for the Cholesky factor L of that block of
+    J^T J at x0. Then J^T J in z has identity diagonal blocks for the points, so J^T J - I has rank
+    at most 12 (14: the pose's coupling) and LSMR converges in
     a few dozen iterations instead of hundreds; and z starts at 0, so TRF's first trust region is
     unit-sized in these units (x0 itself would make it the size of the points' coordinates).
     """
@@ -263,31 +352,35 @@ class _Whitened:
         self.x0 = x0
         blocks = problem.jacobian_blocks(x0)
         U, V = _diagonal_blocks(blocks, problem.tracks)
-        self.Ap = _inverse_cholesky_t(U)
+        prior = problem.prior_row()
+        self.Ap = _inverse_cholesky_t(U if prior is None else U + np.outer(prior, prior))
         self.Aq = _inverse_cholesky_t(V)
         self.Aq_obs = self.Aq[problem.tracks.track]  # (P, 3, 3)
+        self.prior_row = None if prior is None else prior @ self.Ap  # the prior's row by z
         self._blocks_x0: FloatArray | None = blocks  # TRF's first Jacobian is at z = 0: x0's blocks
 
     def native(self, z: FloatArray) -> FloatArray:
-        """(6 + 3T,) the problem's parameters x at whitened z."""
-        dq = np.matmul(self.Aq, z[6:].reshape(-1, 3, 1))[:, :, 0]
-        return self.x0 + np.concatenate([self.Ap @ z[:6], dq.ravel()])
+        """(n_pose + 3T,) the problem's parameters x at whitened z."""
+        n = self.problem.n_pose
+        dq = np.matmul(self.Aq, z[n:].reshape(-1, 3, 1))[:, :, 0]
+        return self.x0 + np.concatenate([self.Ap @ z[:n], dq.ravel()])
 
     def residuals(self, z: FloatArray) -> FloatArray:
-        """(2P,) float64, px: the problem's residuals at x(z)."""
+        """(2P,) float64, px: the problem's residuals at x(z) (and the prior's, with the time offset)."""
         return self.problem.residuals(self.native(z))
 
     def jacobian(self, z: FloatArray) -> sp.csr_matrix:
-        """(2P, 6 + 3T) sparse Jacobian of ``residuals`` by z."""
+        """(2P, n_pose + 3T) sparse Jacobian of ``residuals`` by z."""
         p = self.problem
+        n = p.n_pose
         if self._blocks_x0 is not None and not np.any(z):
             blocks, self._blocks_x0 = self._blocks_x0, None
         else:
             blocks = p.jacobian_blocks(self.native(z))
         P = blocks.shape[0]
-        blocks[:, :, :6] = (blocks[:, :, :6].reshape(2 * P, 6) @ self.Ap).reshape(P, 2, 6)
-        blocks[:, :, 6:] = np.matmul(blocks[:, :, 6:], self.Aq_obs)
-        return sp.csr_matrix((blocks.ravel(), p.cols, p.indptr), shape=p.shape)
+        blocks[:, :, :n] = (blocks[:, :, :n].reshape(2 * P, n) @ self.Ap).reshape(P, 2, n)
+        blocks[:, :, n:] = np.matmul(blocks[:, :, n:], self.Aq_obs)
+        return p.csr(blocks, self.prior_row)
 
 
 def _inverse_cholesky_t(S: FloatArray) -> FloatArray:
@@ -309,8 +402,12 @@ def _per_track_sum(values: FloatArray, tracks: TrackSet) -> FloatArray:
 
 
 def _diagonal_blocks(blocks: FloatArray, tracks: TrackSet) -> tuple[FloatArray, FloatArray]:
-    """The pose's block U (6, 6) and each track's point block V (T, 3, 3) of J^T J, from the blocks (P, 2, 9)."""
-    Jp, Jx = blocks[:, :, :6], blocks[:, :, 6:]
+    """The pose's block U (n, n) and each track's point block V (T, 3, 3) of the observations' J^T J.
+
+    From the blocks (P, 2, n + 3), n = 6 (or 7 with the time offset).
+    """
+    n = blocks.shape[2] - 3
+    Jp, Jx = blocks[:, :, :n], blocks[:, :, n:]
     return np.einsum("pki,pkj->ij", Jp, Jp), _per_track_sum(np.einsum("pki,pkj->pij", Jx, Jx), tracks)
 
 
@@ -321,41 +418,49 @@ _TRUST_SCALE = 32.0
 
 
 def _solve(tracks: TrackSet, T0: FloatArray, points: FloatArray, loss: str, f_scale: float,
-           max_nfev: int, lsmr_tol: float = 1e-12, ftol: float = 1e-9
+           max_nfev: int, lsmr_tol: float = 1e-12, ftol: float = 1e-9,
+           time_offset: tuple[float, float] | None = None
            ) -> tuple[FloatArray, FloatArray, _Problem, FloatArray, object]:
     """One least-squares pass from pose T0 and base-frame points (T, 3) (``_Whitened`` coordinates).
 
     ``lsmr_tol`` must be tight (1e-12) far from the optimum, where TRF otherwise stalls; the
     final pass starts at the robust optimum and converges with a looser one. ``ftol`` is the
-    relative cost change that ends the pass.
+    relative cost change that ends the pass. ``time_offset``: (start s, prior weight px/s) to
+    estimate the time offset too; None not to.
 
     Returns:
         pose (4, 4), base points (T, 3), the problem, its parameters x at the solution, and
-        scipy's result (whose ``fun`` is the residual vector there).
+        scipy's result (whose ``fun`` is the residual vector there, the prior's last with s).
     """
-    problem = _Problem(tracks, T0)
+    problem = _Problem(tracks, T0, None if time_offset is None else time_offset[1])
+    n = problem.n_pose
     q0 = points @ T0[:3, :3].T + T0[:3, 3]
-    white = _Whitened(problem, np.concatenate([np.zeros(6), q0.ravel()]))
-    sol = least_squares(white.residuals, np.zeros(6 + 3 * tracks.n_tracks), jac=white.jacobian,
+    pose0 = np.zeros(6) if time_offset is None else np.append(np.zeros(6), time_offset[0])
+    white = _Whitened(problem, np.concatenate([pose0, q0.ravel()]))
+    sol = least_squares(white.residuals, np.zeros(n + 3 * tracks.n_tracks), jac=white.jacobian,
                         method="trf", loss=loss, f_scale=f_scale, tr_solver="lsmr", max_nfev=max_nfev,
                         x_scale=_TRUST_SCALE,
                         tr_options={"atol": lsmr_tol, "btol": lsmr_tol}, xtol=1e-10, ftol=ftol)
     x = white.native(sol.x)
     R, t = problem.pose(x)
-    return perturb(T0, x[:6]), (x[6:].reshape(-1, 3) - t) @ R, problem, x, sol
+    return perturb(T0, x[:6]), (x[n:].reshape(-1, 3) - t) @ R, problem, x, sol
 
 
 def _schur_parts(problem: _Problem, x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """The Jacobian's dense blocks (P, 2, 9), W (T, 6, 3), V^-1 (T, 3, 3) and S = U - W V^-1 W^T (6, 6) at x.
+    """The Jacobian's dense blocks (P, 2, n + 3), W (T, n, 3), V^-1 (T, 3, 3) and S = U - W V^-1 W^T (n, n) at x.
 
     Built track by track (each observation touches the pose and its own point only); S is the pose
-    block of J^T J with every track's point marginalized out, px^2 per (rad or m)^2.
+    block of J^T J with every track's point marginalized out, px^2 per (rad or m)^2. n = 6, or 7 with
+    the time offset (px^2 per s^2 for it), when S also holds the prior's row.
     """
+    n = problem.n_pose
     blocks = problem.jacobian_blocks(x)
     U, V = _diagonal_blocks(blocks, problem.tracks)
-    W = _per_track_sum(np.einsum("pki,pkj->pij", blocks[:, :, :6], blocks[:, :, 6:]), problem.tracks)
+    W = _per_track_sum(np.einsum("pki,pkj->pij", blocks[:, :, :n], blocks[:, :, n:]), problem.tracks)
     V_inv = np.linalg.inv(V + 1e-12 * np.eye(3))
-    return blocks, W, V_inv, U - np.einsum("tij,tjk,tlk->il", W, V_inv, W)
+    S = U - np.einsum("tij,tjk,tlk->il", W, V_inv, W)
+    prior = problem.prior_row()
+    return blocks, W, V_inv, S if prior is None else S + np.outer(prior, prior)
 
 
 def _schur_information(problem: _Problem, x: FloatArray) -> FloatArray:
@@ -366,9 +471,11 @@ def _schur_information(problem: _Problem, x: FloatArray) -> FloatArray:
 def pose_covariance(problem: _Problem, x: FloatArray, sigma2: float) -> FloatArray:
     """Covariance (6, 6) of the pose block at x: sigma^2 (U - W V^-1 W^T)^-1 (Schur complement).
 
+    With the time offset it is (7, 7), of (omega, tau, s).
+
     Args:
         problem: the bundle adjustment.
-        x: (6 + 3T,) its parameters (pose perturbation, then the tracks' camera-frame points).
+        x: (n + 3T,) its parameters (pose perturbation [and s], then the tracks' camera-frame points).
         sigma2: residual variance, px^2.
     """
     return sigma2 * np.linalg.inv(_schur_information(problem, x))
@@ -392,8 +499,9 @@ def _pose_covariances(problem: _Problem, x: FloatArray, sigma2: float,
     ``residuals``: (2P,) float64, px, the residuals at x (the solver's ``fun``: not evaluated again).
     """
     blocks, W, V_inv, S = _schur_parts(problem, x)
-    Jp, Jx = blocks[:, :, :6], blocks[:, :, 6:]
-    r = residuals.reshape(-1, 2)
+    n_pose = problem.n_pose
+    Jp, Jx = blocks[:, :, :n_pose], blocks[:, :, n_pose:]
+    r = residuals[:2 * problem.tracks.uv.shape[0]].reshape(-1, 2)  # the observations' (not the prior's)
     tracks = problem.tracks
     g = (_per_track_sum(np.einsum("pki,pk->pi", Jp, r), tracks)
          - np.einsum("tij,tjk,tk->ti", W, V_inv, _per_track_sum(np.einsum("pki,pk->pi", Jx, r), tracks)))
@@ -475,6 +583,11 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
            points_init: FloatArray | None = None) -> RefinementResult:
     """Bundle-adjust T_camera_base and the track points, starting from ``T_init``.
 
+    With the time offset estimated (``RefinementConfig.estimate_time_offset``) it starts at 0 and
+    its prior residual is weighted as one pixel of noise per ``time_offset_bound_s`` in the robust
+    pass, as that pass's robust noise estimate in the final one (so the prior is s ~ N(0, bound^2)
+    in both the estimate and its covariance).
+
     Args:
         tracks: the observations (``build_track_set``).
         T_init: (4, 4) float64: starting pose, e.g. the linear calibration.
@@ -483,10 +596,19 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
 
     Raises:
         InsufficientMotionsError: fewer than two tracks survive triangulation or outlier removal.
+        InvalidInputError: the time offset is to be estimated but a track carries no joint velocity.
+        TimeOffsetError: the estimated time offset is beyond ``time_offset_bound_s``.
     """
     config = config or RefinementConfig()
     if not np.all(np.isfinite(T_init)):
         raise InvalidInputError("T_init contains NaN or infinite values")
+    estimate = config.estimate_time_offset
+    if estimate is None:
+        estimate = tracks.velocity is not None
+    if estimate and tracks.velocity is None:
+        raise InvalidInputError("estimate_time_offset is on but not every track carries the joint's velocity "
+                                "(KeypointTrack.velocity)")
+    bound = config.time_offset_bound_s
     points, ok = triangulate_tracks(tracks, T_init)
     if points_init is not None:
         points = np.where(np.isfinite(points_init).all(axis=1)[:, None], points_init, points)
@@ -494,9 +616,10 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     if keep.sum() < 2:
         raise InsufficientMotionsError("fewer than two tracks could be triangulated from the pose")
     sub = _subset(tracks, keep)
-    T, pts, problem, _, sol = _solve(sub, T_init, points[keep], "cauchy", config.cauchy_scale_px,
-                                  config.max_nfev, ftol=config.robust_ftol)
-    res = sol.fun.reshape(-1, 2)
+    T, pts, problem, x, sol = _solve(sub, T_init, points[keep], "cauchy", config.cauchy_scale_px,
+                                     config.max_nfev, ftol=config.robust_ftol,
+                                     time_offset=(0.0, 1.0 / bound) if estimate else None)
+    res = sol.fun[:2 * sub.uv.shape[0]].reshape(-1, 2)
     track_rms = np.sqrt(np.bincount(sub.track, weights=np.sum(res**2, axis=1), minlength=sub.n_tracks)
                         / np.maximum(np.bincount(sub.track, minlength=sub.n_tracks), 1) / 2)
     sigma = 1.4826 * float(np.median(np.abs(res)))
@@ -504,17 +627,29 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     if good.sum() < 2:
         raise InsufficientMotionsError("fewer than two tracks agree with the refined pose")
     sub2 = _subset(sub, good)
-    T, pts2, problem, x, sol = _solve(sub2, T, pts[good], "linear", 1.0, config.max_nfev, 1e-8)
-    m, n = sol.fun.size, sol.x.size
-    sigma2 = float(np.sum(sol.fun**2) / max(m - n, 1))
-    cov = conservative_covariance(*_pose_covariances(problem, x, sigma2, sol.fun))
+    T, pts2, problem, x, sol = _solve(sub2, T, pts[good], "linear", 1.0, config.max_nfev, 1e-8,
+                                      time_offset=(float(x[6]), max(sigma, 1e-6) / bound) if estimate else None)
+    fun = sol.fun[:2 * sub2.uv.shape[0]]  # the observations' residuals (the prior's is last, with s)
+    m, n = fun.size, sol.x.size
+    sigma2 = float(np.sum(fun**2) / max(m - n, 1))
+    cov = conservative_covariance(*_pose_covariances(problem, x, sigma2, fun))
+    offset = offset_std = correlation = None
+    if estimate:
+        offset, offset_std = float(x[6]), float(np.sqrt(cov[6, 6]))
+        correlation = cov[6, :6] / np.sqrt(np.diag(cov)[:6] * cov[6, 6])
+        cov = cov[:6, :6]
+        if abs(offset) > bound:
+            raise TimeOffsetError(f"the estimated time offset between the joint and camera clocks is "
+                                  f"{offset * 1e3:+.1f} ms (1-sigma {offset_std * 1e3:.1f} ms), beyond the "
+                                  f"+-{bound * 1e3:g} ms the bundle adjustment may estimate: give the offset "
+                                  "(e.g. calibrate --time-offset) or turn the estimate off")
     inliers = np.zeros(tracks.n_tracks, dtype=bool)
     kept_idx = np.flatnonzero(keep)[good]
     inliers[kept_idx] = True
     all_points = np.full((tracks.n_tracks, 3), np.nan)
     all_points[kept_idx] = pts2
-    return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(sol.fun**2))),
-                            float(np.sqrt(sigma2)))
+    return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(fun**2))),
+                            float(np.sqrt(sigma2)), offset, offset_std, correlation)
 
 
 def screen_start(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig, max_nfev: int,
@@ -552,6 +687,9 @@ def _subset(tracks: TrackSet, keep: NDArray[np.bool_]) -> TrackSet:
     new_index = np.cumsum(keep) - 1
     mask = keep[tracks.track]
     return TrackSet(tracks.uv[mask], new_index[tracks.track[mask]].astype(np.int64), tracks.rot[mask],
-                    tracks.pivot[keep], tracks.motion[keep], tracks.focal)
+                    tracks.pivot[keep], tracks.motion[keep], tracks.focal,
+                    None if tracks.axis is None else tracks.axis[keep],
+                    None if tracks.delta is None else tracks.delta[mask],
+                    None if tracks.velocity is None else tracks.velocity[mask])
 
 

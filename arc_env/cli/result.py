@@ -145,6 +145,11 @@ def finish(run: CalibrationRun, args: argparse.Namespace, base_frame: str,
           f"{quaternion_xyzw_from_matrix(T_camera_base[:3, :3])}")
     print(f"1-sigma: rotation {np.degrees(s.std[:3])} deg, translation {s.std[3:] * 1e3} mm; RMS reprojection "
           f"{s.rms_px:.3f} px; converged: {s.converged}")
+    if s.time_offset_s is not None and s.time_offset_std_s is not None:
+        given = run.given_time_offset_s
+        print(f"time offset (t_joint - t_camera): {(given + s.time_offset_s) * 1e3:+.2f} ms = given "
+              f"{given * 1e3:+g} ms + estimated {s.time_offset_s * 1e3:+.2f} ms "
+              f"(1-sigma {s.time_offset_std_s * 1e3:.2f} ms)")
     if truth is not None:
         rot, trans = pose_errors(T_camera_base, truth)
         print(f"true error: rotation {rot:.2e} rad ({np.degrees(rot):.4f} deg), translation {trans * 1e3:.3f} mm")

@@ -515,6 +515,11 @@ class FinishedCalibration(Protocol):
         """Motions informing the estimate."""
         ...
 
+    @property
+    def given_time_offset_s(self) -> float:
+        """s: the time offset the joints were read with (``arc_env.robot.timing``)."""
+        ...
+
 
 def result_dict(run: FinishedCalibration, edge: ParentChild, exports: Mapping[str, Path],
                 unusable: str = "", calib_name: str = DEFAULT_CALIB_NAME,
@@ -550,6 +555,8 @@ def result_dict(run: FinishedCalibration, edge: ParentChild, exports: Mapping[st
         "std": None if s.std is None else {"rotation_deg": np.degrees(s.std[:3]).tolist(),
                                            "translation_mm": (s.std[3:] * 1e3).tolist()},
         "rms_reprojection_px": s.rms_px,
+        "time_offset_s": run.given_time_offset_s + (s.time_offset_s or 0.0),
+        "time_offset_std_s": s.time_offset_std_s,
         "stage": s.stage,
         "converged": s.converged,
         "frames": frames_dict(edge, optical_frame),

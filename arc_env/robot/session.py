@@ -30,7 +30,7 @@ import numpy as np
 
 from arc_env.robot.driver import RobotDriver, Sweep
 from arc_env.robot.model import RobotModel, RobotSource
-from arc_env.robot.recording import Recording
+from arc_env.robot.recording import RecordedMotion, Recording
 from arc_env.robot.tracking import TrackerConfig, track_keypoints
 from planners.collision import CollisionChecker
 from planners.errors import TransitError
@@ -455,6 +455,11 @@ class CalibrationRun:
         """Motions informing the estimate."""
         return sum(d.accepted for d in self.diagnostics)
 
+    @property
+    def given_time_offset_s(self) -> float:
+        """s: the time offset d = t_joint - t_camera the recording's joints were read with (0 online)."""
+        return self.recording.time_offset_s if self.recording is not None else 0.0
+
 
 def driver_session(driver: RobotDriver, config: SessionConfig | None = None,
                    on_sweep: Callable[[int, FloatArray, int, Sweep], None] | None = None,
@@ -516,7 +521,7 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
         else:
             frames = recording.frames(m)
             t1 = time.perf_counter()
-            tracks = session.track(frames, m.delta)
+            tracks = track_recorded(session, frames, m)
             del frames
             t2 = time.perf_counter()
             diag.tracks = len(tracks)
@@ -549,6 +554,24 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
     run.check_focal()
     seconds["total"] = time.perf_counter() - started
     return run
+
+
+def track_recorded(session: CalibrationSession, frames: Sequence[ImageArray], motion: RecordedMotion
+                   ) -> list[KeypointTrack]:
+    """Keypoint tracks of a recorded motion's frames, with the joint's velocity at each frame when it is known.
+
+    The tracker hands each track the values of its frames from the per-frame array it is given; given the
+    frame indices, each track tells which frames it spans, and takes the motion's delta (F,) rad and
+    ``joint_velocity`` (F,) rad/s there (what the bundle adjustment's time-offset estimate reads).
+    """
+    if motion.joint_velocity is None:
+        return session.track(frames, motion.delta)
+    indexed = session.track(frames, np.arange(motion.n_frames, dtype=np.float64))
+    tracks = []
+    for t in indexed:
+        k = np.rint(t.delta).astype(np.int64)
+        tracks.append(KeypointTrack(t.pixels, motion.delta[k], motion.joint_velocity[k]))
+    return tracks
 
 
 def estimate_status(state: CalibrationState) -> str:

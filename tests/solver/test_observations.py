@@ -25,3 +25,14 @@ def test_a_joint_must_be_an_integer_index(joint):
 
 def test_numpy_integer_joints_are_indices():
     assert MotionObservation(q_start=np.zeros(7), joint=np.int64(3), tracks=(_track(),)).joint == 3
+
+
+def test_track_velocity_is_optional_and_checked_like_delta():
+    pixels, delta = _track().pixels, _track().delta
+    assert _track().velocity is None
+    track = KeypointTrack(pixels, delta, [0.5, 1.0, 0.5])
+    assert track.velocity.dtype == np.float64 and track.velocity.shape == (3,)
+    with pytest.raises(InvalidInputError, match="3 pixel rows but 2 velocity values"):
+        KeypointTrack(pixels, delta, [0.5, 1.0])
+    with pytest.raises(InvalidInputError, match="track velocity contains NaN"):
+        KeypointTrack(pixels, delta, [0.5, np.nan, 0.5])

@@ -9,7 +9,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
-from solver.errors import InsufficientMotionsError, InvalidInputError
+from solver.errors import InsufficientMotionsError, InvalidInputError, TimeOffsetError
 from solver.frames import perturb, pose_difference, pose_errors
 from solver.refinement import (
     RefinementConfig,
@@ -395,3 +395,124 @@ def test_residuals_are_in_pixels():
     z = points[0, 2]  # frame 0 has delta = 0
     assert problem.residuals(shifted)[0] == pytest.approx(FX * 1e-4 / z, rel=1e-6)
     assert problem.residuals(shifted)[1] == pytest.approx(0.0, abs=1e-9)
+
+
+# -- the time offset between the joint clock and the camera clock -------------------------------------------------
+
+#: Frame rate of the timed scenes, Hz, and their joint log's latency, s (stamped late: d = +20 ms).
+FPS, LATENCY_S = 30.0, 0.020
+
+
+def _timed_scene(seed: int, latency_s: float, n_motions: int = 6, n_tracks: int = 6, noise_px: float = NOISE_PX,
+                 turn_s: float = 1.2, rest_s: float = 0.1) -> Scene:
+    """Sweeps timed as a robot makes them: rest, a cosine speed profile over turn_s, rest; frames at FPS.
+
+    The pixels follow the true turn at each exposure; each track's delta and velocity are read from a joint
+    log stamped ``latency_s`` late (the joint value at exposure t is the true one at t - latency_s), as a
+    recording without ``--time-offset`` gives them. Same seed, same pixels and noise whatever the latency.
+    """
+    rng = np.random.default_rng(seed)
+    T = random_pose(rng)
+    R, t = T[:3, :3], T[:3, 3]
+    times = np.arange(0.0, turn_s + 2 * rest_s, 1.0 / FPS)
+    motions, points = [], []
+    for _ in range(n_motions):
+        axis, pivot = random_unit(rng), rng.uniform(-0.3, 0.3, 3)
+        turn = rng.uniform(0.8, 1.5) * rng.choice([-1.0, 1.0])
+        phase = lambda s: np.clip((s - rest_s) / turn_s, 0.0, 1.0)  # noqa: E731
+        angle = lambda s: turn * (1 - np.cos(np.pi * phase(s))) / 2  # noqa: E731, B023
+        speed = lambda s: turn * np.pi / (2 * turn_s) * np.sin(np.pi * phase(s))  # noqa: E731, B023
+        turns = Rotation.from_rotvec(np.outer(angle(times), axis))
+        logged, velocity = angle(times - latency_s), speed(times - latency_s)
+        tracks = []
+        for _ in range(n_tracks):
+            p0 = pivot + random_unit(rng) * rng.uniform(0.05, 0.25)
+            uv = project_normalized((turns.apply(p0 - pivot) + pivot) @ R.T + t)
+            uv = uv + rng.normal(0.0, noise_px, uv.shape) / FOCAL
+            tracks.append((uv, logged - logged[0], velocity))
+            points.append(p0)
+        motions.append((axis, pivot, tracks))
+    return Scene(T, motions, np.array(points))
+
+
+def _without_velocity(motions: list) -> list:
+    return [(axis, pivot, [(uv, delta) for uv, delta, _ in tracks]) for axis, pivot, tracks in motions]
+
+
+def test_jacobian_with_time_offset_matches_finite_differences():
+    scene = _timed_scene(1, LATENCY_S, n_motions=3, n_tracks=2)
+    tracks = build_track_set(scene.motions, FOCAL)
+    rng = np.random.default_rng(2)
+    x = np.concatenate([0.02 * random_unit(rng), rng.normal(0, 0.02, 3), [0.013],
+                        (_camera_points(scene) + rng.normal(0, 0.01, scene.points.shape)).ravel()])
+    problem = _Problem(tracks, _start_pose(scene.T_true, 3), prior_weight=5.0)
+    J = problem.jacobian(x)
+    assert J.shape == problem.shape == (2 * tracks.uv.shape[0] + 1, 7 + 3 * tracks.n_tracks)
+    J = J.toarray()
+    np.testing.assert_allclose(J, _finite_difference_jacobian(problem, x), rtol=JACOBIAN_RTOL,
+                               atol=JACOBIAN_RTOL * np.abs(J).max())
+    assert problem.residuals(x)[-1] == pytest.approx(5.0 * 0.013)  # the prior's residual, px
+    white = _Whitened(problem, x)
+    z = rng.normal(0, 0.5, x.size)
+    Jz = white.jacobian(z).toarray()
+    np.testing.assert_allclose(Jz, _finite_difference_jacobian(white, z), rtol=JACOBIAN_RTOL,
+                               atol=JACOBIAN_RTOL * np.abs(Jz).max())
+
+
+#: The estimate is within this many of its reported 1-sigma of the latency (a 4-sigma miss: 6e-5 if Gaussian) ...
+OFFSET_SIGMAS = 4.0
+#: ... and that 1-sigma is small enough to be useful, s (measured 0.20-0.32 ms on seeds 20-31 at 0.5 px, the
+#: estimates 0.2-2.6 sigma from 20 ms: the first-order model leaves the joint's acceleration times latency^2 / 2).
+USEFUL_OFFSET_STD_S = 1e-3
+#: Median of chi-square with 6 degrees of freedom: the pose with the latency estimated differs from the pose an
+#: on-time joint log gives (the same pixels) by less than half the noise's spread (measured 0.3-2.2 on seeds
+#: 20-31; with the latency left alone 2.2-193).
+CHI2_6_50 = 5.35
+
+
+@pytest.mark.parametrize("seed", [21, 24])
+def test_refine_recovers_a_joint_log_latency_and_the_pose(seed):
+    lagging = _timed_scene(seed, LATENCY_S)
+    exact = _timed_scene(seed, 0.0)  # the same pixels, a joint log on time
+    T_init = _start_pose(lagging.T_true, seed)
+    estimated = refine(build_track_set(lagging.motions, FOCAL), T_init)  # velocities given: on by default
+    assert estimated.time_offset_std_s < USEFUL_OFFSET_STD_S
+    assert abs(estimated.time_offset_s - LATENCY_S) < OFFSET_SIGMAS * estimated.time_offset_std_s
+    assert estimated.time_offset_correlation.shape == (6,)
+    assert np.all(np.abs(estimated.time_offset_correlation) < 1)
+    reference = refine(build_track_set(_without_velocity(exact.motions), FOCAL), T_init)
+    fixed = refine(build_track_set(_without_velocity(lagging.motions), FOCAL), T_init)
+    # with the latency estimated the pose is about where the on-time log puts it (the same noise); left alone
+    # the latency moves it far out (these seeds: beyond the 99.9% region)
+    xi = pose_difference(estimated.T_camera_base, reference.T_camera_base)
+    assert xi @ np.linalg.solve(reference.covariance, xi) < CHI2_6_50
+    xi = pose_difference(fixed.T_camera_base, reference.T_camera_base)
+    assert xi @ np.linalg.solve(reference.covariance, xi) > CHI2_6_999
+    _assert_closer_than_start_and_consistent(estimated, lagging.T_true)
+
+
+def test_time_offset_estimation_off_changes_nothing():
+    scene = _timed_scene(23, LATENCY_S)
+    T_init = _start_pose(scene.T_true, 23)
+    off = refine(build_track_set(scene.motions, FOCAL), T_init, RefinementConfig(estimate_time_offset=False))
+    plain = refine(build_track_set(_without_velocity(scene.motions), FOCAL), T_init)  # today's tracks: off
+    assert plain.time_offset_s is None and plain.time_offset_std_s is None and off.time_offset_s is None
+    for a, b in ((off.T_camera_base, plain.T_camera_base), (off.covariance, plain.covariance),
+                 (off.points_base, plain.points_base)):
+        assert np.array_equal(a, b, equal_nan=True)
+    assert (off.rms_px, off.sigma_px) == (plain.rms_px, plain.sigma_px)
+
+
+def test_time_offset_estimate_needs_velocities_and_stays_within_its_bound():
+    scene = _timed_scene(24, LATENCY_S, n_motions=4, n_tracks=4)
+    T_init = _start_pose(scene.T_true, 24)
+    some = list(scene.motions)
+    some[0] = _without_velocity(some[:1])[0]  # one motion without joint velocities: off by default
+    assert build_track_set(some, FOCAL).velocity is None
+    assert refine(build_track_set(some, FOCAL), T_init).time_offset_s is None
+    with pytest.raises(InvalidInputError, match="not every track carries the joint's velocity"):
+        refine(build_track_set(some, FOCAL), T_init, RefinementConfig(estimate_time_offset=True))
+    with pytest.raises(TimeOffsetError, match=r"\+20\.\d ms .* beyond the \+-10 ms"):
+        refine(build_track_set(scene.motions, FOCAL), T_init, RefinementConfig(time_offset_bound_s=0.01))
+    with pytest.raises(InvalidInputError, match="time_offset_bound_s must be > 0"):
+        RefinementConfig(time_offset_bound_s=0.0)

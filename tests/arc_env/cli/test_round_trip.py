@@ -111,6 +111,7 @@ def test_png_round_trip_with_pruned_motions_exports_and_overlay(recording, tmp_p
     assert not per_motion["900"]["accepted"] and per_motion["900"]["reason"].startswith("no joint moves")
     assert not per_motion["901"]["accepted"] and per_motion["901"]["reason"].startswith("2 joints move")
     assert result["motions"]["accepted"] >= 4
+    assert result["time_offset_s"] == 0.0 and result["time_offset_std_s"] is None  # format 1: no joint velocities
     T = np.asarray(result["T_camera_base"])
     np.testing.assert_allclose(np.asarray(result["T_base_camera"]) @ T, np.eye(4), atol=1e-9)
     q = result["quaternion"]

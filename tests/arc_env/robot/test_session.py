@@ -1,11 +1,16 @@
 """The one calibration loop: refusals leave the robot where it is, drivers' bad answers are named errors."""
 
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
 import numpy as np
 import pytest
 
 from arc_env.robot.driver import Sweep
 from arc_env.robot.model import RobotModel, RobotSource
-from arc_env.robot.session import CalibrationSession, DriverExecutor
+from arc_env.robot.recording import RecordedMotion
+from arc_env.robot.session import CalibrationSession, DriverExecutor, track_recorded
 from solver.errors import InvalidInputError
 from solver.observations import CameraIntrinsics
 
@@ -67,3 +72,27 @@ def test_a_session_without_executor_only_observes(robot):
         session.step(robot.home, 3, 0.4)
     outcome = session.observe(robot.home, 3, [])
     assert outcome.report is not None and not outcome.accepted
+
+
+def test_recorded_tracks_carry_the_joint_velocity_of_their_frames(robot):
+    rng = np.random.default_rng(0)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (60, 60)).astype(np.uint8), (0, 0), 1.5)
+    n = 12
+    frames = []
+    for k in range(n):  # a textured patch sliding 4 px per frame over a plain background
+        image = np.full((240, 320, 3), 90, np.uint8)
+        image[90:150, 60 + 4 * k:120 + 4 * k] = texture[:, :, None]
+        frames.append(image)
+    delta = np.linspace(0.0, 0.5, n) ** 1.5  # increasing: a track's deltas name its frames
+    velocity = np.gradient(delta) * 30.0
+    motion = RecordedMotion(0, "000", Path("."), n, (), None, np.zeros(7), 1, delta, "", np.arange(n) / 30.0,
+                            velocity)
+    session = CalibrationSession(robot, CAMERA)
+    session.reset()
+    tracks = track_recorded(session, frames, motion)
+    plain = session.track(frames, delta)
+    assert len(tracks) == len(plain) > 0
+    for track, same in zip(tracks, plain, strict=True):
+        assert np.array_equal(track.pixels, same.pixels) and np.array_equal(track.delta, same.delta)
+        np.testing.assert_array_equal(track.velocity, velocity[np.searchsorted(delta, track.delta)])
+    assert all(t.velocity is None for t in track_recorded(session, frames, replace(motion, joint_velocity=None)))
