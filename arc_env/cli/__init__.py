@@ -7,6 +7,8 @@
 * ``calibrate`` (``arc_env.cli.calibrate``): a recording in, a calibration and ROS exports out (no simulator).
 * ``run`` (``arc_env.cli.run``): online calibration, a planner driving a ``RobotDriver``.
 * ``export`` (``arc_env.cli.export``): rewrite the ROS exports of an existing result (no recalibration).
+* ``plan`` (``arc_env.cli.plan``): a motion script out, a timed joint trajectory of exploratory motions for a
+  robot's own controller to replay while a bag records (no simulator).
 
 Each subcommand's module is imported only when it runs, so ``calibrate`` never imports the simulator.
 """
@@ -106,6 +108,11 @@ def main(argv: list[str] | None = None) -> int:
     from arc_env.cli.export import add_arguments as add_export_arguments
 
     add_export_arguments(export)
+    plan = sub.add_parser("plan", help="write exploratory motions as a timed joint trajectory (JointTrajectory "
+                                       "YAML and CSV) for the robot's controller to replay while recording a bag")
+    from arc_env.cli.plan import add_arguments as add_plan_arguments
+
+    add_plan_arguments(plan)
     args = parser.parse_args(argv)
     if args.command == "demo" and args.synthetic and args.planner != "random":
         print("arc-calib: --planner informed needs the MuJoCo scene (drop --synthetic)", file=sys.stderr)
@@ -127,12 +134,16 @@ def main(argv: list[str] | None = None) -> int:
             from arc_env.cli.export import run_export
 
             return run_export(args)
+        if args.command == "plan":
+            from arc_env.cli.plan import run_plan
+
+            return run_plan(args)
         from arc_env.cli.calibrate import run_calibrate
 
         return run_calibrate(args)
     except InvalidInputError as exc:
         print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
-        return 2 if args.command in ("calibrate", "record", "run", "export") else 1
+        return 2 if args.command in ("calibrate", "record", "run", "export", "plan") else 1
     except ArcCalibError as exc:
         print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
         return 1
