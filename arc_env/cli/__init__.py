@@ -85,6 +85,13 @@ def main(argv: list[str] | None = None) -> int:
                              "the robot model goes to DIR.robot/")
     record.add_argument("--image-encoding", choices=("rgb8", "jpeg"), default="jpeg",
                         help="a bag's images: rgb8 (sensor_msgs/Image) or jpeg (CompressedImage; default)")
+    record.add_argument("--trajectory", metavar="FILE.yaml",
+                        help="replay this JointTrajectory YAML (arc-calib plan's) instead of planning motions: the "
+                             "arm follows it while the camera renders at --fps and the joints are logged at 200 Hz "
+                             "(--motions is ignored; --format dir keeps the motions segmentation finds)")
+    record.add_argument("--camera-pose", metavar="FILE",
+                        help="the simulated camera's T_camera_base (YAML/JSON, as plan's --camera-pose-guess reads "
+                             "it) instead of one sampled from --seed")
     _add_look_arguments(record)
     calibrate = sub.add_parser("calibrate", help="calibrate from a recording; write the result and ROS exports")
     from arc_env.cli.calibrate import add_arguments
