@@ -26,6 +26,13 @@ runs at ``fps`` throughout, transits included; ``/joint_states`` at ``joint_hz``
 ``joint_latency_s`` late: a joint sample of true time t carries the stamp t + L, so the time offset of
 ``arc_env.robot.timing`` is d = L. Frames are rendered at the true configuration of their exposure time
 (clean camera only). Beside the bag: ``<out>.ground_truth.json`` and the robot model in ``<out>.robot/``.
+
+``--trajectory FILE.yaml`` (``record_trajectory``): instead of planning, the simulator replays a
+``trajectory_msgs/JointTrajectory`` YAML (``arc-calib plan``'s) as a robot's controller would
+(``replay_positions``: cubics through the points' positions and velocities, linear without velocities) and
+records it -- as a bag, or with ``--format dir`` as a format-2 recording of the motions that segmentation
+finds in the joint log. ``--camera-pose FILE`` places the camera (else it is sampled from the seed). The
+replay checks joint names and limits, not collisions: the arm goes where the script says.
 """
 
 from __future__ import annotations
