@@ -7,6 +7,8 @@
 * ``calibrate`` (``arc_env.cli.calibrate``): a recording in, a calibration and ROS exports out (no simulator).
 * ``run`` (``arc_env.cli.run``): online calibration, a planner driving a ``RobotDriver``.
 * ``export`` (``arc_env.cli.export``): rewrite the ROS exports of an existing result (no recalibration).
+* ``plan`` (``arc_env.cli.plan``): a motion script out, a timed joint trajectory of exploratory motions for a
+  robot's own controller to replay while a bag records (no simulator).
 
 Each subcommand's module is imported only when it runs, so ``calibrate`` never imports the simulator.
 """
@@ -85,6 +87,13 @@ def main(argv: list[str] | None = None) -> int:
                              "the robot model goes to DIR.robot/")
     record.add_argument("--image-encoding", choices=("rgb8", "jpeg"), default="jpeg",
                         help="a bag's images: rgb8 (sensor_msgs/Image) or jpeg (CompressedImage; default)")
+    record.add_argument("--trajectory", metavar="FILE.yaml",
+                        help="replay this JointTrajectory YAML (arc-calib plan's) instead of planning motions: the "
+                             "arm follows it while the camera renders at --fps and the joints are logged at 200 Hz "
+                             "(--motions is ignored; --format dir keeps the motions segmentation finds)")
+    record.add_argument("--camera-pose", metavar="FILE",
+                        help="the simulated camera's T_camera_base (YAML/JSON, as plan's --camera-pose-guess reads "
+                             "it) instead of one sampled from --seed")
     _add_look_arguments(record)
     calibrate = sub.add_parser("calibrate", help="calibrate from a recording; write the result and ROS exports")
     from arc_env.cli.calibrate import add_arguments
@@ -108,6 +117,11 @@ def main(argv: list[str] | None = None) -> int:
     from arc_env.cli.export import add_arguments as add_export_arguments
 
     add_export_arguments(export)
+    plan = sub.add_parser("plan", help="write exploratory motions as a timed joint trajectory (JointTrajectory "
+                                       "YAML and CSV) for the robot's controller to replay while recording a bag")
+    from arc_env.cli.plan import add_arguments as add_plan_arguments
+
+    add_plan_arguments(plan)
     args = parser.parse_args(argv)
     if args.command == "demo" and args.synthetic and args.planner != "random":
         print("arc-calib: --planner informed needs the MuJoCo scene (drop --synthetic)", file=sys.stderr)
@@ -129,12 +143,16 @@ def main(argv: list[str] | None = None) -> int:
             from arc_env.cli.export import run_export
 
             return run_export(args)
+        if args.command == "plan":
+            from arc_env.cli.plan import run_plan
+
+            return run_plan(args)
         from arc_env.cli.calibrate import run_calibrate
 
         return run_calibrate(args)
     except InvalidInputError as exc:
         print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
-        return 2 if args.command in ("calibrate", "record", "run", "export") else 1
+        return 2 if args.command in ("calibrate", "record", "run", "export", "plan") else 1
     except ArcCalibError as exc:
         print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
         return 1

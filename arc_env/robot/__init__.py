@@ -4,5 +4,7 @@
 ``recording`` (the recording format), ``session`` (the one calibration loop), ``driver`` (the
 ``RobotDriver`` protocol), ``exports`` (result.json and ROS exports; the atomic writer), ``overlay``
 (the robot drawn over frames with an estimate), ``timing`` (joints at exposure times: the time
-offset), ``segmentation`` (exploratory motions in a joint stream), ``bag`` (ROS bags in and out).
+offset), ``segmentation`` (exploratory motions in a joint stream), ``bag`` (ROS bags in and out),
+``motion_script`` (exploratory motions out, as a timed joint trajectory), ``obstacles`` (boxes and spheres
+a script keeps clear of).
 """

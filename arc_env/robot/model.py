@@ -22,13 +22,14 @@ import importlib.util
 import os
 import warnings
 import xml.etree.ElementTree as ET
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
+from arc_env.robot.obstacles import Obstacle, add_obstacles
 from solver.arrays import FloatArray, IndexArray, MaskArray
 from solver.camera import in_image, pixels_from_camera_points
 from solver.errors import InvalidInputError
@@ -328,12 +329,14 @@ class RobotModel:
         self._surface: dict[int, tuple[IndexArray, FloatArray]] = {}
 
     @classmethod
-    def load(cls, source: RobotSource, ground: bool = True) -> RobotModel:
+    def load(cls, source: RobotSource, ground: bool = True, obstacles: Sequence[Obstacle] = ()) -> RobotModel:
         """Compile the robot on its own (no floor, texture or camera), at its home configuration.
 
         Args:
             source: the robot.
             ground: add a collision-only plane at the world's z = 0 (``GROUND_GEOM``, never drawn).
+            obstacles: boxes and spheres in the base frame (``arc_env.robot.obstacles``), added as
+                collision-only geoms of the world (the base's pose comes from a first compilation).
 
         Raises:
             InvalidInputError: the file is missing or does not load, or see the constructor.
@@ -346,6 +349,9 @@ class RobotModel:
                                      group=COLLISION_GROUP)
         attach_robot(world, robot, source)
         model = cls(compile_spec(world, source), source)
+        if obstacles:
+            add_obstacles(world, obstacles, model.T_world_base)
+            model = cls(compile_spec(world, source), source)
         model.set_q(model.home)
         return model
 

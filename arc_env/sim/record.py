@@ -26,11 +26,19 @@ runs at ``fps`` throughout, transits included; ``/joint_states`` at ``joint_hz``
 ``joint_latency_s`` late: a joint sample of true time t carries the stamp t + L, so the time offset of
 ``arc_env.robot.timing`` is d = L. Frames are rendered at the true configuration of their exposure time
 (clean camera only). Beside the bag: ``<out>.ground_truth.json`` and the robot model in ``<out>.robot/``.
+
+``--trajectory FILE.yaml`` (``record_trajectory``): instead of planning, the simulator replays a
+``trajectory_msgs/JointTrajectory`` YAML (``arc-calib plan``'s) as a robot's controller would
+(``replay_positions``: cubics through the points' positions and velocities, linear without velocities) and
+records it -- as a bag, or with ``--format dir`` as a format-2 recording of the motions that segmentation
+finds in the joint log. ``--camera-pose FILE`` places the camera (else it is sampled from the seed). The
+replay checks joint names and limits, not collisions: the arm goes where the script says.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -41,7 +49,9 @@ import numpy as np
 from arc_env.robot.bag import BagWriter
 from arc_env.robot.exports import write_files_atomic
 from arc_env.robot.model import RobotSource
+from arc_env.robot.motion_script import read_trajectory, trajectory_positions
 from arc_env.robot.recording import RecordingWriter, write_robot_model
+from arc_env.robot.segmentation import segment_motions
 from arc_env.sim.distortion import Distorter
 from arc_env.sim.env import ArcCalibEnv, EnvConfig
 from arc_env.sim.imaging import realism_settings
@@ -104,6 +114,9 @@ class RecordSettings:
         format: "dir" (a recording, format 1), "bag" (ROS 2, sqlite3) or "mcap" (ROS 2, MCAP).
         image_encoding: a bag's images: "rgb8" (sensor_msgs/Image) or "jpeg" (CompressedImage).
         joint_hz: a bag's joint_states rate, Hz.
+        trajectory: a JointTrajectory YAML (``arc-calib plan``'s) to replay instead of planning motions
+            (``record_trajectory``); ``motions`` is then ignored.
+        camera_pose: (4, 4) float64 ``T_camera_base`` of the simulated camera; None samples one from ``seed``.
     """
 
     out: Path
@@ -122,6 +135,8 @@ class RecordSettings:
     format: str = "dir"
     image_encoding: str = "jpeg"
     joint_hz: float = 200.0
+    trajectory: Path | None = None
+    camera_pose: FloatArray | None = None
 
     def __post_init__(self) -> None:
         if self.format not in FORMATS:
@@ -144,7 +159,7 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
         InvalidInputError: the output exists, or the robot / camera settings are invalid.
     """
     s = settings
-    if s.motions < 1:
+    if s.motions < 1 and s.trajectory is None:
         raise InvalidInputError("--motions must be >= 1")
     out = Path(s.out)
     truth_path = ground_truth_path(out)
@@ -166,7 +181,9 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
                                 terminate_on_convergence=False, fps=s.fps))
     writer: RecordingWriter | None = None
     try:
-        obs, _ = env.reset(seed=s.seed)
+        obs, _ = env.reset(seed=s.seed, options={"camera_pose": s.camera_pose})
+        if s.trajectory is not None:
+            return record_trajectory(s, env, target, distorter, on_motion)
         planner = RandomPlanner(env.session, np.random.default_rng(s.seed))
         if s.format != "dir":
             return _record_bag(s, env, planner, obs, target, distorter, on_motion)
@@ -256,20 +273,145 @@ def _bag_script(s: RecordSettings, env: ArcCalibEnv, planner: RandomPlanner, obs
 def _record_bag(s: RecordSettings, env: ArcCalibEnv, planner: RandomPlanner, obs: dict, target: CameraIntrinsics,
                 distorter: Distorter | None, on_motion: Callable[[str], None] | None) -> dict:
     """``record_episode`` for ``format`` bag or mcap (the module doc); returns the ground truth dict."""
-    out = Path(s.out)
     knots_t, knots_q, script = _bag_script(s, env, planner, obs, on_motion)
-    names = env.scene.robot.joint_names
 
     def q_at(t: FloatArray) -> FloatArray:
         return np.column_stack([np.interp(t, knots_t, knots_q[:, j]) for j in range(knots_q.shape[1])])
 
-    def ns(t: float) -> int:
-        return int(round((BAG_EPOCH_S + t) * 1e9))
+    return _write_bag(s, env, q_at, float(knots_t[-1]), target, distorter, {"script": script})
 
-    frame_t = np.arange(0.0, knots_t[-1], 1.0 / s.fps)
-    joint_t = np.arange(0.0, knots_t[-1], 1.0 / s.joint_hz)
+
+def replay_positions(s: RecordSettings, env: ArcCalibEnv) -> tuple[Callable[[FloatArray], FloatArray], float, str]:
+    """The simulator's controller for ``s.trajectory``: q(t) (times (M,) s -> (M, n) rad), the duration (s), a label.
+
+    The trajectory's joints are matched to the robot's by name (the same set, in any order) and its points
+    must be within the joint limits; the arm holds the first point until its time, then follows the
+    points as ``arc_env.robot.motion_script.trajectory_positions`` does (cubics through the points'
+    positions and velocities, linear without velocities), and holds the last.
+
+    Raises:
+        InvalidInputError: an unreadable trajectory, other joints than the robot's, or a point outside the limits.
+    """
+    path = Path(s.trajectory or "")
+    trajectory = read_trajectory(path)
+    robot = env.scene.robot
+    names = robot.joint_names
+    if sorted(trajectory.joint_names) != sorted(names):
+        raise InvalidInputError(f"{path}: joint_names {list(trajectory.joint_names)} are not the robot's arm joints "
+                                f"{names}")
+    order = [trajectory.joint_names.index(n) for n in names]
+    positions = trajectory.positions[:, order]
+    velocities = trajectory.velocities[:, order] if trajectory.velocities is not None else None
+    bad = np.argwhere((positions < robot.lower - 1e-6) | (positions > robot.upper + 1e-6))
+    if len(bad):
+        k, j = (int(v) for v in bad[0])
+        raise InvalidInputError(f"{path}: point {k}: {names[j]} = {positions[k, j]:.4f} rad is outside its limits "
+                                f"[{robot.lower[j]:.4f}, {robot.upper[j]:.4f}]")
+
+    def q_at(t: FloatArray) -> FloatArray:
+        return trajectory_positions(trajectory.times, positions, velocities, t)
+
+    return q_at, float(trajectory.times[-1]), path.name
+
+
+def record_trajectory(s: RecordSettings, env: ArcCalibEnv, target: CameraIntrinsics, distorter: Distorter | None,
+                      on_second: Callable[[str], None] | None = None) -> dict:
+    """``record_episode`` with ``s.trajectory``: the arm replays it while the camera and joint log record.
+
+    The camera renders at ``fps`` and the joints are logged at ``joint_hz`` from t = 0 to the last point's
+    time, on the trajectory's clock (``replay_positions``). Bag formats are one continuous bag, as
+    ``record --format bag|mcap`` writes. ``dir`` writes a recording directory in format 2: the exploratory
+    motions found by segmenting the joint log (``arc_env.robot.segmentation``, as ``calibrate`` segments a
+    bag), each with the frames exposed during it and the joint log over it, stamped ``joint_latency_s`` late.
+    Returns the ground truth dict (also written beside the output).
+    """
+    q_at, duration, label = replay_positions(s, env)
+    about = {"trajectory": label, "motions": None, "duration_s": duration}
+    if s.format != "dir":
+        return _write_bag(s, env, q_at, duration, target, distorter, about, on_second)
+    out = Path(s.out)
+    names = env.scene.robot.joint_names
+    joint_t = np.arange(0.0, duration, 1.0 / s.joint_hz)
+    joint_q = q_at(joint_t)
+    segments, _ = segment_motions(joint_t, joint_q, names)
+    frame_t = np.arange(0.0, duration, 1.0 / s.fps)
+    writer: RecordingWriter | None = RecordingWriter(out, target, s.robot, video=s.video, fps=s.fps)
+    seconds = _Seconds(duration, on_second)
+    try:
+        for k, seg in enumerate(segments):
+            frames_in = frame_t[(frame_t >= seg.t_start) & (frame_t <= seg.t_stop)]
+            logged = (joint_t >= seg.t_start - 0.1) & (joint_t <= seg.t_stop + 0.1)
+            frames = []
+            for q in q_at(frames_in):
+                env.scene.robot.set_q(q)
+                image = env.scene.render()
+                frames.append(distorter(image) if distorter else image)
+            writer.add_motion(names, joint_q[logged], frames, frame_times=frames_in,
+                              joint_times=joint_t[logged] + s.joint_latency_s)
+            seconds.until(seg.t_stop, f"motion {k}: {names[seg.joint or 0]} delta {seg.delta:+.3f} rad, "
+                                      f"{len(frames)} frames")
+        seconds.until(math.inf)
+        T_camera_base = env.T_camera_base_true
+        truth = {
+            "note": "simulation ground truth of the recording beside this file; not part of the recording",
+            "recording": out.name,
+            "format": s.format,
+            "T_camera_base": T_camera_base.tolist(),
+            "translation": T_camera_base[:3, 3].tolist(),
+            "quaternion_xyzw": quaternion_xyzw_from_matrix(T_camera_base[:3, :3]).tolist(),
+            "seed": s.seed,
+            "robot": s.robot.path or "gymnasium-robotics Franka Panda",
+            "joint_latency_s": s.joint_latency_s,
+            "time_offset_s": s.joint_latency_s,
+            **about,
+            "segments": [{"joint": names[seg.joint or 0], "delta": seg.delta, "t_start": seg.t_start,
+                          "t_stop": seg.t_stop} for seg in segments],
+        }
+        writer.close()
+        writer = None
+        write_files_atomic({ground_truth_path(out): json.dumps(truth, indent=2) + "\n"})
+        return truth
+    finally:
+        if writer is not None:
+            writer.abort()
+
+
+class _Seconds:
+    """Calls ``report`` once for every whole second of a recording passed (a progress display's steps)."""
+
+    def __init__(self, duration: float, report: Callable[[str], None] | None):
+        self.duration, self.report, self.done = duration, report, 0
+
+    def until(self, t: float, status: str = "") -> None:
+        """Report every whole second up to t s (the last one at the end of the recording)."""
+        last = max(1, math.ceil(self.duration))
+        whole = last if t >= self.duration else min(int(t), last)
+        while self.report is not None and self.done < whole:
+            self.done += 1
+            self.report(status or f"{self.done} s of {self.duration:.0f} s")
+
+
+def _ns(t: float) -> int:
+    """Bag stamp (ns) of the time t s from the start of a simulated recording."""
+    return int(round((BAG_EPOCH_S + t) * 1e9))
+
+
+def _write_bag(s: RecordSettings, env: ArcCalibEnv, q_at: Callable[[FloatArray], FloatArray], duration: float,
+               target: CameraIntrinsics, distorter: Distorter | None, about: dict,
+               on_second: Callable[[str], None] | None = None) -> dict:
+    """Write the arm's motion ``q_at`` (times (M,) s -> (M, n) rad) over [0, duration) s as a bag (module doc).
+
+    ``about`` is added to the ground truth; ``on_second`` is called once per second of recording rendered.
+    Returns the ground truth dict.
+    """
+    out = Path(s.out)
+    names = env.scene.robot.joint_names
+    ns = _ns
+    frame_t = np.arange(0.0, duration, 1.0 / s.fps)
+    joint_t = np.arange(0.0, duration, 1.0 / s.joint_hz)
     frame_q, joint_q = q_at(frame_t), q_at(joint_t)
     joint_v = np.gradient(joint_q, joint_t, axis=0)
+    seconds = _Seconds(duration, on_second)
     events = sorted([(ns(t), 0, k) for k, t in enumerate(frame_t)]
                     + [(ns(t + s.joint_latency_s), 1, k) for k, t in enumerate(joint_t)])
     robot_dir = robot_dir_path(out)
@@ -282,11 +424,13 @@ def _record_bag(s: RecordSettings, env: ArcCalibEnv, planner: RandomPlanner, obs
             if kind == 1:
                 writer.joints(stamp, names, joint_q[k], joint_v[k])
                 continue
+            seconds.until(frame_t[k])
             env.scene.robot.set_q(frame_q[k])
             image = env.scene.render()
             writer.image(stamp, distorter(image) if distorter else image)
         writer.close()
         writer = None
+        seconds.until(math.inf)
         T_camera_base = env.T_camera_base_true
         truth = {
             "note": "simulation ground truth of the bag beside this file; not part of the bag",
@@ -303,7 +447,7 @@ def _record_bag(s: RecordSettings, env: ArcCalibEnv, planner: RandomPlanner, obs
             "joint_latency_s": s.joint_latency_s,
             "time_offset_s": s.joint_latency_s,
             "camera_epoch_s": BAG_EPOCH_S,
-            "script": script,
+            **about,
         }
         write_files_atomic({ground_truth_path(out): json.dumps(truth, indent=2) + "\n"})
         return truth
