@@ -2,9 +2,9 @@
 
 For each seed and latency L (ms): ``arc-calib record --format mcap --joint-latency-ms L`` (the simulator's
 episode as a ROS 2 MCAP bag whose joint states are stamped L late) into a temporary directory, then the
-bag calibrated as ``arc-calib calibrate`` does (``read_bag`` + ``calibrate_recording``, no ``--time-offset``)
-twice: with the time offset estimated (the default: a bag's motions carry joint velocities) and with the
-estimate off (``RefinementConfig.estimate_time_offset=False``: the joint values taken as stamped).
+bag calibrated as ``arc-calib calibrate`` does (``read_bag`` + ``calibrate_reading_offset``: the joints read
+again at the estimated offset while its correction is large; no ``--time-offset``) twice: with the time
+offset estimated (the default: a bag's motions carry joint velocities) and with the estimate off (``RefinementConfig.estimate_time_offset=False``: the joint values taken as stamped).
 
     python scripts/bench_latency.py [--latencies 0 10 20 40] [--motions 10] [--size 960x540] [--seeds 0]
         [--json out.json]
@@ -15,7 +15,7 @@ Prints one row per latency and mode (means over the seeds). ``--json FILE`` writ
      "latency_ms": {"20": {"estimated": ROW, "fixed": ROW}, ...}}
 
 where ROW holds the means over the seeds that gave a pose -- ``rot_rad`` (geodesic rotation error, rad),
-``trans_m`` (translation error, m), ``offset_s`` (the estimated time offset d = t_joint - t_camera, s;
+``trans_m`` (translation error, m), ``offset_s`` (the estimated time offset d = t_joint - t_camera, s, over all passes;
 null when fixed), ``offset_std_s`` (its 1-sigma, s; null when fixed), ``std_rot_deg`` / ``std_trans_mm``
 (the largest 1-sigma of the pose), ``rms_px`` -- plus ``n_pose`` (seeds with a pose), ``n_usable``
 (seeds whose result ``calibrate`` would write) and ``per_seed`` (the same keys per seed, with ``seed``,
@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from arc_env.robot.bag import read_bag
-from arc_env.robot.session import UsableCriteria, calibrate_recording, unusable_reason
+from arc_env.robot.session import UsableCriteria, calibrate_reading_offset, unusable_reason
 from arc_env.sim.record import RecordSettings, record_episode
 from solver.frames import pose_errors
 from solver.pipeline import CalibratorConfig
@@ -48,13 +48,15 @@ FIGURES = ("rot_rad", "trans_m", "offset_s", "offset_std_s", "std_rot_deg", "std
 def calibrate_bag(bag: Path, truth: dict, config: CalibratorConfig) -> dict:
     """One calibration of a recorded bag: its errors against the ground truth and its estimate of the offset."""
     t0 = time.perf_counter()
-    run = calibrate_recording(read_bag(bag, truth["robot_model"], truth["base_body"]), config=config)
+    run = calibrate_reading_offset(lambda offset: read_bag(bag, truth["robot_model"], truth["base_body"],
+                                                           time_offset_s=offset), config=config)
     s = run.calibrator.state
     row: dict = {k: None for k in FIGURES}
     row.update(usable=not unusable_reason(run, UsableCriteria()), seconds=round(time.perf_counter() - t0, 1))
     if s.T_camera_base is not None:
         rot, trans = pose_errors(s.T_camera_base, np.asarray(truth["T_camera_base"]))
-        row.update(rot_rad=rot, trans_m=trans, offset_s=s.time_offset_s, offset_std_s=s.time_offset_std_s,
+        total = None if s.time_offset_s is None else run.given_time_offset_s + s.time_offset_s
+        row.update(rot_rad=rot, trans_m=trans, offset_s=total, offset_std_s=s.time_offset_std_s,
                    rms_px=s.rms_px)
     if s.std is not None:
         row.update(std_rot_deg=float(np.degrees(s.std[:3]).max()), std_trans_mm=float(s.std[3:].max() * 1e3))

@@ -7,7 +7,9 @@ the same recording: the motions are the segments of its joint stream where one j
 For each motion of the recording (``arc_env.robot.recording``): decode its frames, track keypoints on the
 moving links, and hand the tracks with the joint offset of every frame to the calibrator
 (``arc_env.robot.session.calibrate_recording``), which updates its estimate after every motion (the
-paper's Algorithm 1, so the convergence monitor sees the sequence of estimates). The result is written
+paper's Algorithm 1, so the convergence monitor sees the sequence of estimates). With time stamps (format
+2, a bag) the joints are read again at the estimated time offset while its correction is large
+(``arc_env.robot.session.calibrate_reading_offset``). The result is written
 only when it is usable (``arc_env.robot.session``'s module doc); otherwise nothing is written and the
 exit code is 1. No simulator is involved: no GL context is created, even with ``--overlay`` (the robot
 is drawn by projecting its model with OpenCV).
@@ -31,7 +33,7 @@ from arc_env.robot.exports import calib_name_from, check_frame_name, easy_handey
 from arc_env.robot.overlay import RobotProjector, draw_overlay
 from arc_env.robot.recording import Recording, read_recording
 from arc_env.robot.segmentation import SegmentConfig
-from arc_env.robot.session import CalibrationRun, UsableCriteria, calibrate_recording
+from arc_env.robot.session import CalibrationRun, UsableCriteria, calibrate_reading_offset
 from solver.arrays import evenly_spaced
 from solver.errors import InvalidInputError
 from solver.frames import check_transform
@@ -76,7 +78,7 @@ def _read_ground_truth(path: Path) -> np.ndarray:
 BAG_OPTIONS = ("robot", "base_body", "image_topic", "camera_info_topic", "joint_topic", "camera_info")
 
 
-def _read_input(args: argparse.Namespace) -> Recording:
+def _read_input(args: argparse.Namespace, quiet: bool = False) -> Recording:
     """The recording directory or the bag named on the command line."""
     if not is_bag(args.recording):
         given = [f"--{o.replace('_', '-')}" for o in BAG_OPTIONS if getattr(args, o) is not None]
@@ -92,7 +94,8 @@ def _read_input(args: argparse.Namespace) -> Recording:
                          camera_info_topic=args.camera_info_topic, joint_topic=args.joint_topic,
                          camera_info_file=args.camera_info, time_offset_s=args.time_offset,
                          segmentation=SegmentConfig(min_delta_rad=args.min_delta))
-    print_segments(recording)
+    if not quiet:
+        print_segments(recording)
     return recording
 
 
@@ -140,8 +143,14 @@ def run_calibrate(args: argparse.Namespace) -> int:
     if recording.ignored_joints:
         print(f"note: joints.csv columns ignored (not hinge joints of the arm): {list(recording.ignored_joints)}",
               file=sys.stderr)
+    def read(offset: float) -> Recording | BagRecording:  # the joints read at another time offset
+        if offset == args.time_offset:
+            return recording
+        print(f"time offset: reading the joints again at {offset * 1e3:+.2f} ms", file=sys.stderr)
+        return _read_input(argparse.Namespace(**{**vars(args), "time_offset": offset}), quiet=True)
+
     with Progress(max(len(recording.motions), 1), "motions", enabled=not args.quiet) as bar:
-        run = calibrate_recording(recording, on_motion=bar.step)
+        run = calibrate_reading_offset(read, args.time_offset, on_motion=bar.step)
     overlays = (lambda: render_overlays(run, Path(args.overlay))) if args.overlay else None
     return finish(run, args, base_frame, overlays, truth, started, calib_name)
 

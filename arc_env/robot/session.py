@@ -556,6 +556,47 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
     return run
 
 
+#: ``calibrate_reading_offset`` stops once the time-offset correction is below this, s ...
+OFFSET_PASS_TOL_S = 1e-3
+#: ... or within this many of its 1-sigma.
+OFFSET_PASS_SIGMAS = 2.0
+
+
+def calibrate_reading_offset(read: Callable[[float], Recording], given_s: float = 0.0,
+                             tracker: TrackerConfig | None = None, config: CalibratorConfig | None = None,
+                             on_motion: Callable[[str], None] | None = None, max_passes: int = 3) -> CalibrationRun:
+    """``calibrate_recording``, read again at the corrected time offset while the correction is large.
+
+    The bundle adjustment's time-offset estimate is first order in the correction (each frame's turn
+    delta + v s, ``solver.refinement``), so where a sweep starts or stops abruptly a large correction comes
+    out short (``scripts/bench_latency.py``: 17.7 ms for a 20 ms latency, 29.8 for 40). So while the
+    correction exceeds ``OFFSET_PASS_TOL_S`` and ``OFFSET_PASS_SIGMAS`` of its 1-sigma, the recording is
+    read again with its joints interpolated at the corrected offset (``read(offset)``) and calibrated again,
+    at most ``max_passes`` times in all; the last run is returned (its ``given_time_offset_s`` is the offset
+    it read the joints at). Recordings without joint velocities (format 1) or with the estimate off take one
+    pass.
+
+    Args:
+        read: the recording with its joints read at a time offset d = t_joint - t_camera, s.
+        given_s: s, the first pass's offset (the user's ``--time-offset``).
+        tracker: tracking settings, as ``calibrate_recording``'s.
+        config: solver settings, as ``calibrate_recording``'s.
+        on_motion: progress callback, as ``calibrate_recording``'s (called again on every pass).
+        max_passes: most calibrations; >= 1.
+    """
+    if max_passes < 1:
+        raise InvalidInputError(f"max_passes must be >= 1, got {max_passes}")
+    offset = given_s
+    for _ in range(max_passes):
+        run = calibrate_recording(read(offset), tracker, config, on_motion)
+        s = run.calibrator.state
+        if (s.time_offset_s is None or s.time_offset_std_s is None
+                or abs(s.time_offset_s) <= max(OFFSET_PASS_TOL_S, OFFSET_PASS_SIGMAS * s.time_offset_std_s)):
+            break
+        offset += s.time_offset_s
+    return run
+
+
 def track_recorded(session: CalibrationSession, frames: Sequence[ImageArray], motion: RecordedMotion
                    ) -> list[KeypointTrack]:
     """Keypoint tracks of a recorded motion's frames, with the joint's velocity at each frame when it is known.

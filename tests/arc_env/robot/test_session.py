@@ -96,3 +96,38 @@ def test_recorded_tracks_carry_the_joint_velocity_of_their_frames(robot):
         assert np.array_equal(track.pixels, same.pixels) and np.array_equal(track.delta, same.delta)
         np.testing.assert_array_equal(track.velocity, velocity[np.searchsorted(delta, track.delta)])
     assert all(t.velocity is None for t in track_recorded(session, frames, replace(motion, joint_velocity=None)))
+
+
+def test_the_joints_are_read_again_at_the_corrected_time_offset(monkeypatch):
+    """A first-order estimate that recovers 80 % of the remaining offset each pass: read again until it is small."""
+    from types import SimpleNamespace
+
+    from arc_env.robot import session as session_module
+
+    true_offset, reads = 0.020, []
+
+    def fake_calibrate(recording, tracker=None, config=None, on_motion=None):
+        remaining = true_offset - recording.time_offset_s
+        state = SimpleNamespace(time_offset_s=0.8 * remaining, time_offset_std_s=0.0002)
+        return SimpleNamespace(calibrator=SimpleNamespace(state=state), recording=recording)
+
+    def read(offset):
+        reads.append(offset)
+        return SimpleNamespace(time_offset_s=offset)
+
+    monkeypatch.setattr(session_module, "calibrate_recording", fake_calibrate)
+    run = session_module.calibrate_reading_offset(read, 0.0)
+    # passes read at 0, 16 and 19.2 ms; the third one corrects by 0.64 ms, below 1 ms: no fourth
+    np.testing.assert_allclose(reads, [0.0, 0.016, 0.0192], atol=1e-12)
+    assert run.recording.time_offset_s == pytest.approx(0.0192)
+    reads.clear()
+    session_module.calibrate_reading_offset(read, 0.0, max_passes=1)
+    assert reads == [0.0]
+    with pytest.raises(InvalidInputError, match="max_passes"):
+        session_module.calibrate_reading_offset(read, 0.0, max_passes=0)
+    # no estimate (format 1 recordings, or the estimate off): one pass
+    monkeypatch.setattr(session_module, "calibrate_recording", lambda recording, *a, **k: SimpleNamespace(
+        calibrator=SimpleNamespace(state=SimpleNamespace(time_offset_s=None, time_offset_std_s=None))))
+    reads.clear()
+    session_module.calibrate_reading_offset(read, 0.005)
+    assert reads == [0.005]
