@@ -4,7 +4,8 @@ For each seed and latency L (ms): ``arc-calib record --format mcap --joint-laten
 episode as a ROS 2 MCAP bag whose joint states are stamped L late) into a temporary directory, then the
 bag calibrated as ``arc-calib calibrate`` does (``read_bag`` + ``calibrate_reading_offset``: the joints read
 again at the estimated offset while its correction is large; no ``--time-offset``) twice: with the time
-offset estimated (the default: a bag's motions carry joint velocities) and with the estimate off (``RefinementConfig.estimate_time_offset=False``: the joint values taken as stamped).
+offset estimated (the default: a bag's motions carry joint velocities) and with the estimate off
+(``RefinementConfig.estimate_time_offset=False``: the joint values taken as stamped).
 
     python scripts/bench_latency.py [--latencies 0 10 20 40] [--motions 10] [--size 960x540] [--seeds 0]
         [--json out.json]
