@@ -486,8 +486,11 @@ class Calibrator:
         cfg = self.config
         try:
             refined = refine(tracks, start, cfg.refinement, points_init=points_init)
-        except (ArcCalibError, np.linalg.LinAlgError) as exc:
+        except ArcCalibError as exc:
             return None, f"refinement failed: {exc}", False
+        except np.linalg.LinAlgError:  # numpy's words ("leading minor not positive definite") mean nothing here
+            return None, ("refinement failed: its equations are singular (tracks or motions that leave a point "
+                          "or the pose free)"), False
         with np.errstate(invalid="ignore"):  # a negative variance is caught just below
             std = np.sqrt(np.diag(refined.covariance))
         if (not np.all(np.isfinite(std)) or np.any(std[:3] > cfg.max_std_rotation)

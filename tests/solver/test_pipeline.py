@@ -317,3 +317,16 @@ def test_convergence_config_is_validated():
 
 def test_state_type(exact_episode):
     assert isinstance(exact_episode[0].state, CalibrationState)
+
+
+def test_a_singular_adjustment_says_so_in_words(monkeypatch):
+    """numpy's "leading minor not positive definite" never reaches the user."""
+    import solver.pipeline as pipeline
+
+    def singular(*args, **kwargs):
+        raise np.linalg.LinAlgError("8-th leading minor of the array is not positive definite")
+
+    monkeypatch.setattr(pipeline, "refine", singular)
+    cal, _ = _episode(1, 6, SyntheticConfig(noise_px=0.0, outlier_fraction=0.0, tracks_per_motion=20))
+    assert cal.state.T_linear is not None and cal.state.T_camera_base is None and not cal.state.converged
+    assert "equations are singular" in cal.state.message and "minor" not in cal.state.message
