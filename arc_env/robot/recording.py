@@ -244,7 +244,7 @@ def read_camera(path: Path) -> CameraIntrinsics:
         if "distortion_model" not in data:
             return CameraIntrinsics(K=K, dist=dist, width=width, height=height)
         name = data["distortion_model"]
-        name = DISTORTION_MODEL_SYNONYMS.get(name, name) if isinstance(name, str) else name
+        name = DISTORTION_MODEL_SYNONYMS.get(name, name) if isinstance(name, str) else None
         if name not in DISTORTION_MODELS:
             raise InvalidInputError(f"distortion_model {data['distortion_model']!r} is not supported; supported: "
                                     f"{sorted(DISTORTION_MODELS)} (or no distortion_model: OpenCV's pinhole model)")
