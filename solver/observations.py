@@ -21,6 +21,11 @@ FOCAL_RANGE_WIDTHS = (0.05, 100.0)
 #: Largest |coefficient| of OpenCV's distortion model accepted (real lenses: |k| below ~10, rational
 #: models up to a few hundred).
 MAX_DISTORTION_COEFFICIENT = 1000.0
+#: Camera models (``CameraIntrinsics.model``) with the numbers of distortion coefficients each takes:
+#: "pinhole" is OpenCV's pinhole camera with its radial-tangential distortion (k1, k2, p1, p2[, k3, ...];
+#: ``cv2.projectPoints``); "fisheye" is OpenCV's fisheye (equidistant) model, r = f * theta_d with
+#: theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8) (``cv2.fisheye``).
+CAMERA_MODELS: dict[str, tuple[int, ...]] = {"pinhole": (0, 4, 5, 8, 12, 14), "fisheye": (4,)}
 #: Largest |pixel coordinate| of a keypoint, px: far beyond any image; larger values are corrupt data.
 MAX_PIXEL_MAGNITUDE = 1e6
 
@@ -56,23 +61,29 @@ def _check_camera(K: FloatArray, dist: FloatArray, width: object, height: object
 
 @dataclass(frozen=True)
 class CameraIntrinsics:
-    """A pinhole camera with OpenCV distortion.
+    """A camera: K, its lens distortion under one of OpenCV's two models, and the image size.
 
     Attributes:
         K: (3, 3) float64, pixels: the intrinsic matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]; fx and fy
             within ``FOCAL_RANGE_WIDTHS`` times the width, (cx, cy) within the image give or take its size.
-        dist: (k,) float64: OpenCV distortion (k1, k2, p1, p2[, k3, ...]); empty means none; every
-            |coefficient| at most ``MAX_DISTORTION_COEFFICIENT``.
+        dist: (k,) float64: the distortion coefficients of ``model``; every |coefficient| at most
+            ``MAX_DISTORTION_COEFFICIENT``. Pinhole: OpenCV's (k1, k2, p1, p2[, k3, ...]), empty means none.
+            Fisheye: exactly (k1, k2, k3, k4); zeros are the ideal equidistant lens (r = f * theta), not none.
         width: image width in pixels, 1..``MAX_IMAGE_SIDE``.
         height: image height in pixels, 1..``MAX_IMAGE_SIDE``.
+        model: "pinhole" or "fisheye" (``CAMERA_MODELS``). OpenCV's fisheye functions ignore K's skew, so
+            a fisheye K must have none.
     """
 
     K: FloatArray
     dist: FloatArray = field(default_factory=lambda: np.zeros(0))
     width: int = 1920
     height: int = 1080
+    model: str = "pinhole"
 
     def __post_init__(self) -> None:
+        if self.model not in CAMERA_MODELS:
+            raise InvalidInputError(f"camera model {self.model!r} is not one of {sorted(CAMERA_MODELS)}")
         K = np.asarray(self.K, dtype=np.float64)
         dist = np.asarray(self.dist, dtype=np.float64).reshape(-1)
         if K.shape != (3, 3):
@@ -81,11 +92,28 @@ class CameraIntrinsics:
         _finite("dist", dist)
         if K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
             raise InvalidInputError(f"K must have positive focal lengths and last row [0, 0, 1], got {K}")
-        if dist.size not in (0, 4, 5, 8, 12, 14):
+        if self.model == "fisheye":
+            if dist.size != 4:
+                raise InvalidInputError(f"the fisheye model takes exactly 4 distortion coefficients (k1, k2, k3, k4), "
+                                        f"got {dist.size}")
+            if K[0, 1] != 0:
+                raise InvalidInputError(f"K[0][1] (skew) = {K[0, 1]:g}: the fisheye model (OpenCV's cv2.fisheye) "
+                                        "takes a K without skew")
+        elif dist.size not in CAMERA_MODELS["pinhole"]:
             raise InvalidInputError(f"dist must have 0, 4, 5, 8, 12 or 14 coefficients, got {dist.size}")
         _check_camera(K, dist, self.width, self.height)
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", dist)
+
+    @property
+    def is_fisheye(self) -> bool:
+        """Whether the camera follows OpenCV's fisheye model."""
+        return self.model == "fisheye"
+
+    @property
+    def has_distortion(self) -> bool:
+        """Whether pixels differ from the distortion-free camera's (a fisheye lens always does)."""
+        return self.is_fisheye or bool(np.any(self.dist))
 
     @property
     def focal(self) -> FloatArray:

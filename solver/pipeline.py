@@ -598,7 +598,12 @@ class Calibrator:
         return FocalCheck.from_scan(np.asarray(scales, dtype=np.float64), np.asarray(rms))
 
     def _track_set(self, live: list[int], focal_scale: float = 1.0) -> TrackSet:
-        """The bundle adjustment's observations of motions ``live``, for focal lengths scaled by focal_scale."""
+        """The bundle adjustment's observations of motions ``live``, for focal lengths scaled by focal_scale.
+
+        The normalized coordinates are divided by the scale: exact without distortion, first order with it
+        and for a fisheye. Re-undistorting a fisheye's pixels with the scaled K instead was tried: a 3 % high
+        focal length came out best at 0.963 either way (8 noise-free motions), so the simple form stays.
+        """
         motions = [(self._motions[k].axis_base, self._motions[k].point_base,
                     self._motions[k].tracks if focal_scale == 1.0 else
                     [(uv / focal_scale, *rest) for uv, *rest in self._motions[k].tracks]) for k in live]

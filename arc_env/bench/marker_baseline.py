@@ -168,6 +168,9 @@ class MarkerRun:
 def make_detector(board: MarkerBoard, intrinsics: CameraIntrinsics,
                   config: MarkerBaselineConfig | None = None) -> cv2.aruco.CharucoDetector:
     """OpenCV's ChArUco detector for ``board`` with the camera's intrinsics and our detector settings."""
+    if intrinsics.is_fisheye:
+        raise InvalidInputError("the marker baseline detects and poses the board with OpenCV's pinhole model "
+                                "(cv2.aruco, cv2.solvePnP); a fisheye camera is not supported")
     config = config or MarkerBaselineConfig()
     charuco = cv2.aruco.CharucoParameters()
     charuco.cameraMatrix = intrinsics.K
@@ -192,7 +195,7 @@ def detect_board(image: NDArray[np.uint8], board: MarkerBoard, intrinsics: Camer
         The detection, or None when the board is not found well enough for a pose.
     """
     gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
-    detector = detector or make_detector(board, intrinsics)
+    detector = detector if detector is not None and not intrinsics.is_fisheye else make_detector(board, intrinsics)
     corners, ids, _, _ = detector.detectBoard(gray)
     if corners is None or ids is None or len(corners) < max(min_corners, 4):
         return None

@@ -37,6 +37,7 @@ from arc_env.robot.session import CalibrationRun, UsableCriteria, calibrate_read
 from solver.arrays import evenly_spaced
 from solver.errors import InvalidInputError
 from solver.frames import check_transform
+from solver.observations import CameraIntrinsics
 
 
 def render_overlays(run: CalibrationRun, out_dir: Path, n_motions: int = 4) -> dict[Path, bytes]:
@@ -99,6 +100,13 @@ def _read_input(args: argparse.Namespace, quiet: bool = False) -> Recording:
     return recording
 
 
+def _lens(intrinsics: CameraIntrinsics) -> str:
+    """How the summary line names the camera's lens model ("" for a distortion-free pinhole)."""
+    if intrinsics.is_fisheye:
+        return " with a fisheye lens (OpenCV's equidistant model)"
+    return " with distortion" if intrinsics.dist.size and np.any(intrinsics.dist) else ""
+
+
 def print_segments(bag: BagRecording) -> None:
     """The motions found in the bag's joint stream and the spans skipped, on stderr."""
     t = bag.topics
@@ -137,7 +145,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     usable = recording.usable
     print(f"{recording.path}: {len(recording.motions)} motions ({len(usable)} with one moving joint), camera "
           f"{recording.intrinsics.width}x{recording.intrinsics.height}"
-          f"{' with distortion' if recording.intrinsics.dist.size and np.any(recording.intrinsics.dist) else ''}, "
+          f"{_lens(recording.intrinsics)}, "
           f"robot {recording.model_path.name} (base {recording.base_body}, {len(recording.joint_names)} joints)",
           file=sys.stderr)
     if recording.ignored_joints:

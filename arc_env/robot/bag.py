@@ -17,8 +17,9 @@ same ``Recording`` that ``arc-calib calibrate`` calibrates from a recording dire
   decodes (jpeg, png). ``BagRecording.frames`` reads and decodes one motion's images from the bag.
 * **CameraInfo**: K, and D by ``distortion_model``: plumb_bob (4 or 5 coefficients), rational_polynomial
   (8; OpenCV's order k1 k2 p1 p2 k3 k4 k5 k6); an empty model with zero D is no distortion. ``equidistant``
-  (OpenCV's fisheye model) is refused: the solver projects through OpenCV's pinhole model
-  (``solver.camera``), and a fisheye lens would be silently mis-modelled.
+  (4: k1 k2 k3 k4; "fisheye" is read as its synonym) is OpenCV's fisheye model: a ``CameraIntrinsics`` with
+  ``model="fisheye"``, which ``solver.camera`` projects through ``cv2.fisheye`` (zero D is still the
+  equidistant lens, not a pinhole).
 
 Every problem -- a file that is not a bag, a corrupt or truncated chunk, a missing topic, an unknown
 joint name, clocks that never overlap -- raises ``InvalidInputError`` with one line naming the bag and
@@ -45,6 +46,9 @@ from rosbags.typesys import Stores, get_typestore
 
 from arc_env.robot.model import RobotModel, RobotSource
 from arc_env.robot.recording import (
+    CAMERA_MODEL_OF,
+    DISTORTION_MODEL_SYNONYMS,
+    DISTORTION_MODELS,
     MIN_MOTIONS,
     MOVING_THRESHOLD_RAD,
     RecordedMotion,
@@ -67,8 +71,6 @@ IMAGE_ENCODINGS: dict[str, tuple[int, int | None]] = {
     "rgb8": (3, None), "bgr8": (3, cv2.COLOR_BGR2RGB), "mono8": (1, cv2.COLOR_GRAY2RGB),
     "rgba8": (4, cv2.COLOR_RGBA2RGB), "bgra8": (4, cv2.COLOR_BGRA2RGB),
 }
-#: ``CameraInfo.distortion_model`` values read, with the numbers of coefficients accepted.
-DISTORTION_MODELS = {"plumb_bob": (0, 4, 5), "rational_polynomial": (8,)}
 #: The storages ``BagWriter`` writes: ROS 2 sqlite3, ROS 2 MCAP, ROS 1.
 STORAGES = ("sqlite3", "mcap", "ros1")
 
@@ -98,16 +100,12 @@ def intrinsics_from_camera_info(model: str, K: FloatArray, D: FloatArray, width:
         where: how messages name the source (a topic, a file).
 
     Raises:
-        InvalidInputError: an unsupported or fisheye distortion model, a coefficient count the model does
-            not have, or intrinsics ``CameraIntrinsics`` refuses (a zero K: an uncalibrated camera).
+        InvalidInputError: an unsupported distortion model, a coefficient count the model does not have, or
+            intrinsics ``CameraIntrinsics`` refuses (a zero K: an uncalibrated camera; a fisheye K with skew).
     """
     D = np.asarray(D, dtype=np.float64).reshape(-1)
     model = (model or "").strip()
-    if model in ("equidistant", "fisheye"):
-        raise InvalidInputError(
-            f"{where}: distortion_model {model!r} (OpenCV's fisheye model) is not supported: the solver projects "
-            "through OpenCV's pinhole model (solver/camera.py); rectify the images (image_proc) and use the "
-            "rectified camera_info, or calibrate the lens with plumb_bob or rational_polynomial")
+    model = DISTORTION_MODEL_SYNONYMS.get(model, model)
     if model == "" and not np.any(D):
         D = np.zeros(0)
     elif model not in DISTORTION_MODELS:
@@ -121,6 +119,8 @@ def intrinsics_from_camera_info(model: str, K: FloatArray, D: FloatArray, width:
         raise InvalidInputError(f"{where}: K has a zero focal length (an uncalibrated camera); calibrate the "
                                 "camera's intrinsics first, or give them with --camera-info FILE")
     try:
+        if CAMERA_MODEL_OF.get(model) == "fisheye":
+            return CameraIntrinsics(K=K, dist=D, width=int(width), height=int(height), model="fisheye")
         return CameraIntrinsics(K=K, dist=D if np.any(D) else np.zeros(0), width=int(width), height=int(height))
     except InvalidInputError as exc:
         raise InvalidInputError(f"{where}: {exc}") from exc
@@ -523,9 +523,12 @@ class BagWriter:
         self.writer.write(connection, stamp_ns, data)
 
     def camera_info(self, stamp_ns: int, intrinsics: CameraIntrinsics, distortion_model: str = "") -> None:
-        """Write one CameraInfo: K, D (plumb_bob for 4-5 coefficients, rational_polynomial for 8)."""
+        """Write one CameraInfo: K, D (plumb_bob for 4-5 coefficients, rational_polynomial for 8, equidistant for
+        a fisheye); ``distortion_model`` overrides the name (tests write wrong ones).
+        """  # noqa: D205
         D = np.asarray(intrinsics.dist, dtype=np.float64)
-        model = distortion_model or ("rational_polynomial" if D.size == 8 else "plumb_bob")
+        model = distortion_model or ("equidistant" if intrinsics.is_fisheye else
+                                     "rational_polynomial" if D.size == 8 else "plumb_bob")
         if model == "plumb_bob" and D.size == 0:
             D = np.zeros(5)
         K = np.asarray(intrinsics.K, dtype=np.float64)

@@ -59,6 +59,14 @@ MOVING_THRESHOLD_RAD = 0.01
 JOINT_RANGE_SLACK_RAD = 1.0
 #: Fewest usable motions a recording must hold (the linear calibration needs 3).
 MIN_MOTIONS = 3
+#: Distortion models by ROS's names (``sensor_msgs/CameraInfo.distortion_model``; camera.json's optional
+#: "distortion_model"), with the numbers of coefficients each takes. plumb_bob and rational_polynomial are
+#: OpenCV's pinhole distortion (k1 k2 p1 p2[ k3[ k4 k5 k6]]), equidistant its fisheye model (k1 k2 k3 k4).
+DISTORTION_MODELS = {"plumb_bob": (0, 4, 5), "rational_polynomial": (8,), "equidistant": (4,)}
+#: Other names of ``DISTORTION_MODELS`` entries.
+DISTORTION_MODEL_SYNONYMS = {"fisheye": "equidistant"}
+#: The ``CameraIntrinsics.model`` of each of ``DISTORTION_MODELS``.
+CAMERA_MODEL_OF = {"plumb_bob": "pinhole", "rational_polynomial": "pinhole", "equidistant": "fisheye"}
 VIDEO_NAME = "video.mp4"
 FRAMES_CSV = "frames.csv"
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -219,7 +227,7 @@ def _load_json(path: Path) -> dict:
 
 
 def read_camera(path: Path) -> CameraIntrinsics:
-    """camera.json -> CameraIntrinsics (K, OpenCV dist, width, height); errors name the file."""
+    """camera.json -> CameraIntrinsics (K, dist, width, height, optional distortion_model); errors name the file."""
     data = _load_json(path)
     missing = [k for k in ("width", "height", "K") if k not in data]
     if missing:
@@ -233,7 +241,17 @@ def read_camera(path: Path) -> CameraIntrinsics:
                                     f"got {width!r}, {height!r}")
         K = np.asarray(data["K"], dtype=np.float64)
         dist = np.asarray(data.get("dist") or [], dtype=np.float64).reshape(-1)
-        return CameraIntrinsics(K=K, dist=dist, width=width, height=height)
+        if "distortion_model" not in data:
+            return CameraIntrinsics(K=K, dist=dist, width=width, height=height)
+        name = data["distortion_model"]
+        name = DISTORTION_MODEL_SYNONYMS.get(name, name) if isinstance(name, str) else None
+        if name not in DISTORTION_MODELS:
+            raise InvalidInputError(f"distortion_model {data['distortion_model']!r} is not supported; supported: "
+                                    f"{sorted(DISTORTION_MODELS)} (or no distortion_model: OpenCV's pinhole model)")
+        if dist.size not in DISTORTION_MODELS[name]:
+            raise InvalidInputError(f"distortion_model {name!r} takes {DISTORTION_MODELS[name]} coefficients "
+                                    f"in dist, got {dist.size}")
+        return CameraIntrinsics(K=K, dist=dist, width=width, height=height, model=CAMERA_MODEL_OF[name])
     except (InvalidInputError, TypeError, ValueError) as exc:
         raise InvalidInputError(f"{path}: {exc}") from exc
 
@@ -615,6 +633,8 @@ class RecordingWriter:
         camera = {"width": intrinsics.width, "height": intrinsics.height, "K": K.tolist()}
         if intrinsics.dist.size:
             camera["dist"] = intrinsics.dist.tolist()
+        if intrinsics.is_fisheye:
+            camera["distortion_model"] = "equidistant"
         write_files_atomic({self.tmp / "camera.json": json.dumps(camera, indent=2) + "\n"})
         model, base = write_robot_model(robot, self.tmp / "robot")
         write_files_atomic({self.tmp / "robot.json": json.dumps({"model": f"robot/{model}", "base": base}, indent=2)

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from solver.camera import normalized_from_pixels, pixels_from_camera_points, rays_from_normalized
+from solver.camera import in_image, normalized_from_pixels, pixels_from_camera_points, rays_from_normalized
 from solver.errors import InvalidInputError
 from solver.observations import CameraIntrinsics
 from tests.solver.scene import CX, CY, FX, FY, HEIGHT, WIDTH, K
@@ -130,8 +133,6 @@ def test_intrinsics_error_is_also_a_value_error():
 
 
 def test_in_image_bounds_are_pixel_centres_with_margin():
-    from solver.camera import in_image
-
     cam = CameraIntrinsics.from_fov(500.0, 640, 480)
     px = np.array([[0.0, 0.0], [639.0, 479.0], [-0.01, 10.0], [639.01, 10.0], [10.0, 479.5], [320.0, 240.0]])
     np.testing.assert_array_equal(in_image(px, cam), [True, True, False, False, False, True])
@@ -139,3 +140,95 @@ def test_in_image_bounds_are_pixel_centres_with_margin():
     np.testing.assert_array_equal(in_image(np.array([[5.0, 5.0], [634.0, 474.0], [634.5, 10.0]]), cam, 5.0),
                                   [True, True, False])
     assert in_image(np.zeros((3, 4, 2)), cam).shape == (3, 4)
+
+
+# -- the fisheye model --------------------------------------------------------------------------------------
+#: A 1280x800 fisheye: its corners are 77 degrees off the axis (a pinhole of this focal length would put
+#: them 4.3x further out); theta_d(theta) is monotonic up to 89 degrees.
+FISHEYE_W, FISHEYE_H = 1280, 800
+FISHEYE_K = np.array([[520.0, 0.0, 641.3], [0.0, 522.0, 398.2], [0.0, 0.0, 1.0]])
+FISHEYE_D = np.array([0.08, -0.03, 0.008, -0.001])
+
+
+@pytest.fixture
+def fisheye() -> CameraIntrinsics:
+    return CameraIntrinsics(K=FISHEYE_K, dist=FISHEYE_D, width=FISHEYE_W, height=FISHEYE_H, model="fisheye")
+
+
+def _directions(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Unit rays at theta off the optical axis and azimuth phi, radians -> (N, 3)."""
+    return np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+
+
+def _equidistant_by_hand(points: np.ndarray) -> np.ndarray:
+    """OpenCV's fisheye model written out: r_d = theta (1 + k1 theta^2 + ... + k4 theta^8), pixels = K (r_d / r) xy."""
+    xy = points[:, :2] / points[:, 2:]
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    theta = np.arctan(r)
+    theta_d = theta * (1 + sum(k * theta ** (2 * i + 2) for i, k in enumerate(FISHEYE_D)))
+    scale = np.where(r > 0, theta_d / np.where(r > 0, r, 1.0), 1.0)
+    d = xy * scale[:, None]
+    return np.column_stack([FISHEYE_K[0, 0] * d[:, 0] + FISHEYE_K[0, 2], FISHEYE_K[1, 1] * d[:, 1] + FISHEYE_K[1, 2]])
+
+
+def test_fisheye_projection_matches_the_model_by_hand(fisheye, rng):
+    points = _directions(rng.uniform(0, np.radians(80), 500), rng.uniform(-np.pi, np.pi, 500))
+    points *= rng.uniform(0.3, 4.0, 500)[:, None]
+    np.testing.assert_allclose(pixels_from_camera_points(points, fisheye), _equidistant_by_hand(points), rtol=0,
+                               atol=PINHOLE_TOL * FISHEYE_W)
+
+
+def test_fisheye_undistortion_recovers_rays_over_the_whole_image(fisheye, rng):
+    # Directions out to 85 degrees, projected by OpenCV itself; those landing in the image cover it to its
+    # corners (77 degrees), where a pinhole with these K and D would be off by hundreds of pixels.
+    n = 20000
+    points = _directions(np.arccos(rng.uniform(np.cos(np.radians(85)), 1.0, n)), rng.uniform(-np.pi, np.pi, n))
+    pixels, _ = cv2.fisheye.projectPoints(points.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), FISHEYE_K, FISHEYE_D)
+    pixels = pixels.reshape(-1, 2)
+    inside = in_image(pixels, fisheye)
+    border = np.minimum(np.minimum(pixels[:, 0], FISHEYE_W - 1 - pixels[:, 0]),
+                        np.minimum(pixels[:, 1], FISHEYE_H - 1 - pixels[:, 1]))
+    near_border = inside & (border < 3.0)
+    corner = inside & (np.hypot(*(pixels - FISHEYE_K[:2, 2]).T) > 0.97 * np.hypot(FISHEYE_W / 2, FISHEYE_H / 2))
+    assert inside.sum() > 5000 and near_border.sum() > 50 and corner.sum() >= 4
+    uv = normalized_from_pixels(pixels[inside], fisheye)
+    truth = points[inside, :2] / points[inside, 2:]
+    np.testing.assert_allclose(uv, truth, rtol=0, atol=ROUND_TRIP_TOL)
+    # the pinhole model with the same numbers is far off: the test sees the model
+    pinhole = CameraIntrinsics(K=FISHEYE_K, dist=FISHEYE_D, width=FISHEYE_W, height=FISHEYE_H)
+    assert np.max(np.abs(normalized_from_pixels(pixels[inside], pinhole) - truth)) > 1.0
+
+
+@settings(max_examples=100, deadline=None)
+@given(theta=st.floats(0.0, np.radians(80)), phi=st.floats(-np.pi, np.pi), depth=st.floats(0.05, 20.0))
+def test_fisheye_round_trip_property(theta, phi, depth):
+    fisheye = CameraIntrinsics(K=FISHEYE_K, dist=FISHEYE_D, width=FISHEYE_W, height=FISHEYE_H, model="fisheye")
+    point = _directions(np.array([theta]), np.array([phi])) * depth
+    uv = normalized_from_pixels(pixels_from_camera_points(point, fisheye), fisheye)
+    np.testing.assert_allclose(uv, point[:, :2] / point[:, 2:], rtol=0, atol=ROUND_TRIP_TOL)
+
+
+def test_zero_fisheye_coefficients_are_still_equidistant():
+    ideal = CameraIntrinsics(K=FISHEYE_K, dist=np.zeros(4), width=FISHEYE_W, height=FISHEYE_H, model="fisheye")
+    assert ideal.has_distortion
+    theta = np.radians(60)
+    px = pixels_from_camera_points(_directions(np.array([theta]), np.array([0.0])), ideal)
+    np.testing.assert_allclose(px[0, 0], FISHEYE_K[0, 2] + FISHEYE_K[0, 0] * theta, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        pytest.param({"dist": np.zeros(5)}, r"fisheye model takes exactly 4 distortion coefficients \(k1, k2, k3, "
+                     r"k4\), got 5", id="five"),
+        pytest.param({"dist": np.zeros(0)}, "exactly 4 distortion coefficients .*got 0", id="none"),
+        pytest.param({"K": FISHEYE_K + [[0, 1.5, 0], [0, 0, 0], [0, 0, 0]]}, r"K\[0\]\[1\] \(skew\) = 1.5: the fisheye",
+                     id="skew"),
+        pytest.param({"model": "kannala"}, r"camera model 'kannala' is not one of \['fisheye', 'pinhole'\]",
+                     id="unknown-model"),
+    ],
+)
+def test_fisheye_validation(kwargs, match):
+    args = {"K": FISHEYE_K, "dist": FISHEYE_D, "width": FISHEYE_W, "height": FISHEYE_H, "model": "fisheye"}
+    with pytest.raises(InvalidInputError, match=match):
+        CameraIntrinsics(**{**args, **kwargs})

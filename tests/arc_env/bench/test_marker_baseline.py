@@ -17,6 +17,7 @@ from planners.collision import CollisionChecker
 from solver import sample_camera_pose
 from solver.errors import InvalidInputError
 from solver.frames import perturb, pose_errors, transform_from_rt
+from solver.observations import CameraIntrinsics
 
 #: 960x540 with the camera 1.2 m from the workspace (camera pose 4 of the benchmarks).
 SCENE = SceneConfig(width=960, height=540, marker_board=MarkerBoard())
@@ -144,3 +145,10 @@ def test_baseline_needs_a_board_scene():
             MarkerBaseline(e)
     finally:
         e.close()
+
+
+def test_a_fisheye_camera_is_refused():
+    fisheye = CameraIntrinsics(K=np.array([[300.0, 0, 479.5], [0, 300.0, 269.5], [0, 0, 1]]), dist=np.zeros(4),
+                               width=960, height=540, model="fisheye")
+    with pytest.raises(InvalidInputError, match="marker baseline .* pinhole model .* fisheye camera is not supported"):
+        detect_board(np.zeros((540, 960), np.uint8), MarkerBoard(), fisheye)

@@ -31,6 +31,9 @@ EXACT = 1e-6
 JPEG_TOL = 3
 CAMERA = CameraIntrinsics(K=np.array([[60.0, 0, 32], [0, 60.0, 24], [0, 0, 1]]),
                           dist=np.array([-0.1, 0.01, 0.0, 0.0, 0.0]), width=W, height=H)
+#: an equidistant (fisheye) camera: CameraInfo distortion_model "equidistant", D = k1..k4
+FISHEYE = CameraIntrinsics(K=np.array([[38.0, 0, 31.7], [0, 38.5, 23.9], [0, 0, 1]]),
+                           dist=np.array([0.05, -0.01, 0.002, -0.0003]), width=W, height=H, model="fisheye")
 #: the motions of the script: (joint index, delta rad)
 MOTIONS = [(3, 0.5), (5, -0.4), (1, 0.3)]
 
@@ -74,7 +77,7 @@ def frame_image(k):
 
 def write_test_bag(path, model, storage="mcap", encoding="rgb8", latency_s=0.0, joint_names=None,
                    clock_gap_s=0.0, images=True, joints=True, extra_joint_topic=False, distortion_model="",
-                   compress=False):
+                   compress=False, camera=CAMERA):
     """The script as a bag; joint stamps = true time + latency_s (+ clock_gap_s)."""
     names = joint_names or list(model.joint_names)
     knots = _knots(model.default_q)
@@ -84,7 +87,7 @@ def write_test_bag(path, model, storage="mcap", encoding="rgb8", latency_s=0.0, 
         second = writer.writer.add_connection("/other/joint_states", "sensor_msgs/msg/JointState",
                                               typestore=writer.typestore)
     ns = lambda t: int(round((T0 + t) * 1e9))  # noqa: E731
-    writer.camera_info(ns(0.0), CAMERA, distortion_model)
+    writer.camera_info(ns(0.0), camera, distortion_model)
     events = []
     if images:
         events += [(k / FPS, "image", k) for k in range(int(end * FPS))]
@@ -159,8 +162,16 @@ def test_camera_info_models(tmp_path):
     rational = intrinsics_from_camera_info("rational_polynomial", K, np.arange(8) * 0.01, W, H, "x")
     assert rational.dist.size == 8
     assert intrinsics_from_camera_info("", K, np.zeros(5), W, H, "x").dist.size == 0
-    with pytest.raises(InvalidInputError, match="'equidistant' .*fisheye.* not supported"):
-        intrinsics_from_camera_info("equidistant", K, np.zeros(4), W, H, "x")
+    for name in ("equidistant", "fisheye"):
+        fisheye = intrinsics_from_camera_info(name, K, FISHEYE.dist, W, H, "x")
+        assert fisheye.model == "fisheye" and fisheye.dist.tolist() == FISHEYE.dist.tolist()
+    ideal = intrinsics_from_camera_info("equidistant", K, np.zeros(4), W, H, "x")
+    assert ideal.model == "fisheye" and ideal.dist.tolist() == [0, 0, 0, 0]  # r = f theta, not a pinhole
+    with pytest.raises(InvalidInputError,
+                       match=r"^x: distortion_model 'equidistant' takes \(4,\) coefficients, got 5$"):
+        intrinsics_from_camera_info("equidistant", K, np.zeros(5), W, H, "x")
+    with pytest.raises(InvalidInputError, match="^x: .*skew.*fisheye"):
+        intrinsics_from_camera_info("equidistant", K + [0, 0.5, 0, 0, 0, 0, 0, 0, 0], np.zeros(4), W, H, "x")
     with pytest.raises(InvalidInputError, match="takes \\(8,\\) coefficients, got 5"):
         intrinsics_from_camera_info("rational_polynomial", K, np.zeros(5), W, H, "x")
     with pytest.raises(InvalidInputError, match="zero focal length"):
@@ -172,6 +183,28 @@ def test_camera_info_models(tmp_path):
                    "distortion_coefficients: {rows: 1, cols: 5, data: [-0.2, 0.03, 0, 0, 0]}\n")
     cam = read_camera_info_yaml(yml)
     assert cam.K[0, 0] == 61 and cam.K[1, 2] == 23 and cam.dist.tolist() == [-0.2, 0.03, 0, 0, 0]
+    yml.write_text("image_width: 64\nimage_height: 48\ncamera_name: cam\n"
+                   "camera_matrix: {rows: 3, cols: 3, data: [38, 0, 31.7, 0, 38.5, 23.9, 0, 0, 1]}\n"
+                   "distortion_model: equidistant\n"
+                   "distortion_coefficients: {rows: 1, cols: 4, data: [0.05, -0.01, 0.002, -0.0003]}\n")
+    cam = read_camera_info_yaml(yml)
+    assert cam.model == "fisheye" and cam.dist.tolist() == FISHEYE.dist.tolist()
+    np.testing.assert_array_equal(cam.K, FISHEYE.K)
+    yml.write_text(yml.read_text().replace("cols: 4, data: [", "cols: 3, data: ["))
+    yml.write_text(yml.read_text().replace("0.002, -0.0003]", "0.002]"))
+    with pytest.raises(InvalidInputError, match=r"cam.yaml: distortion_model 'equidistant' takes \(4,\) "
+                       r"coefficients, got 3$"):
+        read_camera_info_yaml(yml)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "ros1"])
+def test_an_equidistant_camera_info_reads_as_a_fisheye(robot, tmp_path, storage):
+    model_path, base, model = robot
+    bag, _ = write_test_bag(tmp_path / ("b.bag" if storage == "ros1" else "b"), model, storage, camera=FISHEYE)
+    cam = read_bag(bag, model_path, base).intrinsics
+    assert cam.model == "fisheye"
+    np.testing.assert_array_equal(cam.K, FISHEYE.K)
+    np.testing.assert_array_equal(cam.dist, FISHEYE.dist)
 
 
 # -- bad bags: one line naming the topic, exit 2, nothing written ---------------------------------------
@@ -219,9 +252,10 @@ def test_several_joint_topics_need_a_choice(robot, tmp_path, capsys):
     assert len(read_bag(bag, robot[0], robot[1], joint_topic="/other/joint_states").motions) == 3
 
 
-def test_a_fisheye_camera_is_refused_by_name(robot, tmp_path, capsys):
-    bag, _ = write_test_bag(tmp_path / "b", robot[2], distortion_model="equidistant")
-    _fails(bag, tmp_path, capsys, robot, "topic /camera/color/camera_info", "fisheye")
+def test_an_equidistant_camera_info_with_five_coefficients(robot, tmp_path, capsys):
+    bag, _ = write_test_bag(tmp_path / "b", robot[2], distortion_model="equidistant")  # CAMERA's 5 plumb_bob
+    _fails(bag, tmp_path, capsys, robot, "topic /camera/color/camera_info",
+           "distortion_model 'equidistant' takes (4,) coefficients, got 5")
 
 
 @pytest.mark.parametrize("damage", ["truncated", "corrupt chunk"])

@@ -7,6 +7,7 @@ which the format allows) and breaks one thing.
 """
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -16,7 +17,7 @@ import pytest
 
 from arc_env.cli import main
 from arc_env.robot.model import RobotSource, panda_mjcf_dir
-from arc_env.robot.recording import read_recording, write_robot_model
+from arc_env.robot.recording import RecordingWriter, read_camera, read_recording, write_robot_model
 from arc_env.sim.distortion import Distorter
 from arc_env.sim.record import RecordSettings, ground_truth_path, record_episode
 from solver.camera import normalized_from_pixels
@@ -400,3 +401,44 @@ def test_bad_format_2_motions_are_named(copy, tmp_path, capsys, edit, needles):
         (motion / "joints.csv").write_text("\n".join(joints) + "\n")
         (motion / "frames.csv").write_text("\n".join(frames) + "\n")
     _calibrate_fails(copy, tmp_path, capsys, 2, *needles)
+
+
+# -- camera.json's distortion_model ------------------------------------------------------------------------
+FISHEYE_CAMERA = {"width": 640, "height": 400, "K": [[260.0, 0, 320.5], [0, 261.0, 199.0], [0, 0, 1]],
+                  "dist": [0.08, -0.03, 0.008, -0.001]}
+
+
+def test_camera_json_distortion_model(tmp_path):
+    path = tmp_path / "camera.json"
+    for name in ("equidistant", "fisheye"):
+        path.write_text(json.dumps({**FISHEYE_CAMERA, "distortion_model": name}))
+        cam = read_camera(path)
+        assert cam.model == "fisheye" and cam.dist.tolist() == FISHEYE_CAMERA["dist"]
+    path.write_text(json.dumps(FISHEYE_CAMERA))  # no model: the pinhole model, as before
+    assert read_camera(path).model == "pinhole"
+    for name, count in (("plumb_bob", 5), ("rational_polynomial", 8)):
+        path.write_text(json.dumps({**FISHEYE_CAMERA, "dist": [0.01] * count, "distortion_model": name}))
+        assert read_camera(path).model == "pinhole" and read_camera(path).dist.size == count
+    path.write_text(json.dumps({**FISHEYE_CAMERA, "dist": [0.01] * 5, "distortion_model": "equidistant"}))
+    with pytest.raises(InvalidInputError, match=r"camera.json: distortion_model 'equidistant' takes \(4,\) "
+                       r"coefficients in dist, got 5$"):
+        read_camera(path)
+    for name in ("kannala_brandt", ["equidistant"]):
+        path.write_text(json.dumps({**FISHEYE_CAMERA, "distortion_model": name}))
+        with pytest.raises(InvalidInputError, match=rf"camera.json: distortion_model {re.escape(repr(name))} is not "
+                           r"supported; supported: \['equidistant', 'plumb_bob', 'rational_polynomial'\]"):
+            read_camera(path)
+
+
+def test_recording_writer_keeps_a_fisheye(tmp_path):
+    cam = CameraIntrinsics(K=np.array(FISHEYE_CAMERA["K"]), dist=np.array(FISHEYE_CAMERA["dist"]), width=640,
+                           height=400, model="fisheye")
+    writer = RecordingWriter(tmp_path / "rec", cam, RobotSource())
+    try:
+        written = json.loads((writer.tmp / "camera.json").read_text())
+        assert written["distortion_model"] == "equidistant"
+        back = read_camera(writer.tmp / "camera.json")
+        assert back.model == "fisheye" and back.dist.tolist() == FISHEYE_CAMERA["dist"]
+        np.testing.assert_array_equal(back.K, cam.K)
+    finally:
+        writer.abort()
