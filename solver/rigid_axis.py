@@ -50,11 +50,12 @@ class RigidAxisConfig:
         max_track_rms_px: px; a track whose RMS residual under the fitted rigid motion exceeds this
             (or ``noise_factor`` times the tracks' typical RMS, if larger) is inconsistent (it slides or
             drifted) and is dropped, then the fit is repeated.
-        noise_factor: the threshold follows the tracks' noise: at least this many times the
-            ``noise_quantile`` of the tracks' RMS residuals (a low quantile, which the consistent tracks
-            set even when most slide). Without it a fixed 1 px threshold drops every track once the
-            tracker's noise reaches about 0.7 px: on synthetic Panda motions at 1 px noise the rigid
-            front end gave an axis on 0 of 30 motions (``scripts/bench_front_ends.py``).
+        noise_factor: the threshold follows the tracks' noise: this many times the ``noise_quantile``
+            of the tracks' RMS residuals (a low quantile, which the consistent tracks set even when most
+            slide), capped by the tracks' own jitter (``rms_threshold``, ``track_noise_px``). Without it
+            a fixed 1 px threshold drops every track once the tracker's noise reaches about 0.7 px: on
+            synthetic Panda motions at 1 px noise the rigid front end gave an axis on 0 of 30 motions
+            (``scripts/bench_front_ends.py``).
         noise_quantile: see ``noise_factor``; in (0, 1).
         loss_scale_px: px; scale of the Cauchy loss of the refinement.
         max_axis_std: rad; the fitted axis direction's 1-sigma must be below this, else the motion is
@@ -581,20 +582,48 @@ def _track_rms(tracks: _Tracks, a: FloatArray, p: FloatArray, focal: float,
     return np.sqrt(cost / np.diff(np.append(tracks.first, len(r))))
 
 
-def rms_threshold(track_rms: FloatArray, config: RigidAxisConfig) -> float:
+def track_noise_px(uv: list[FloatArray], focal: float) -> float:
+    """px: the tracks' jitter, from second differences, independent of any motion model (0: too short to tell).
+
+    For points sampled densely along a smooth path, ``x[k+1] - 2 x[k] + x[k-1]`` is noise with variance
+    6 sigma^2 per coordinate; the median over the tracks of sqrt(mean |d2|^2 / 12) estimates sigma.
+    Tracks that slide smoothly (highlights, silhouettes) do not raise it, nor does a rigid-motion misfit.
+
+    Args:
+        uv: L tracks, each (n_i, 2) float64 normalized camera coordinates.
+        focal: mean focal length, px.
+    """
+    per_track = [np.mean(np.sum(np.diff(t, n=2, axis=0) ** 2, axis=1)) / 12.0 for t in uv if len(t) >= 3]
+    return float(np.sqrt(np.median(per_track)) * focal) if per_track else 0.0
+
+
+def rms_threshold(track_rms: FloatArray, config: RigidAxisConfig, noise_px: float) -> float:
     """px: the largest RMS residual of a consistent track, given every track's RMS (T,) px (inf: not fitted).
 
-    ``config.max_track_rms_px``, or ``config.noise_factor`` times the ``config.noise_quantile`` of the
-    finite RMS values if that is larger (noisier tracks).
+    ``config.max_track_rms_px``, or if larger ``config.noise_factor`` times the ``config.noise_quantile``
+    of the finite RMS values (noisier tracks) -- but never above ``_JITTER_FACTOR`` times the tracks'
+    own jitter ``noise_px`` (px, ``track_noise_px``) or ``_SMOOTH_ERROR_PX``, whichever is larger, so a
+    misfit that every track shares (a motion the model cannot explain, e.g. straight tracks) does not
+    pass as noise.
     """
     finite = track_rms[np.isfinite(track_rms)]
     if finite.size == 0:
         return config.max_track_rms_px
-    return max(config.max_track_rms_px, config.noise_factor * float(np.quantile(finite, config.noise_quantile)))
+    cap = max(_JITTER_FACTOR * noise_px, _SMOOTH_ERROR_PX)
+    adaptive = min(config.noise_factor * float(np.quantile(finite, config.noise_quantile)), cap)
+    return max(config.max_track_rms_px, adaptive)
+
+
+#: ``rms_threshold`` never exceeds this many times the tracks' jitter (a consistent track's RMS is ~1.4x it) ...
+_JITTER_FACTOR = 4.0
+#: ... or this, px, if larger: trackers also err smoothly (a template turning under the light drifts by
+#: fractions of a pixel over a sweep), which the jitter does not show.
+_SMOOTH_ERROR_PX = 1.5
 
 
 def _fit_from_start(uv: list[FloatArray], deltas: list[FloatArray], a: FloatArray, p: FloatArray, focal: float,
-                    config: RigidAxisConfig) -> tuple[float, FloatArray, FloatArray, _Tracks, FloatArray, int]:
+                    config: RigidAxisConfig, noise_px: float
+                    ) -> tuple[float, FloatArray, FloatArray, _Tracks, FloatArray, int]:
     """Refine one start: fit, drop the tracks that do not move rigidly with the others, refit (3 rounds).
 
     Returns the truncated cost over every track (a dropped track costs the threshold), a (3,), p (3,),
@@ -611,7 +640,7 @@ def _fit_from_start(uv: list[FloatArray], deltas: list[FloatArray], a: FloatArra
             p, X = -p, -X
         track_rms = np.full(n, np.inf)
         track_rms[idx] = rms
-        threshold = rms_threshold(track_rms, config)
+        threshold = rms_threshold(track_rms, config, noise_px)
         new_keep = track_rms <= threshold
         done = new_keep.sum() < config.min_tracks or np.array_equal(new_keep, keep)
         keep = new_keep
@@ -648,6 +677,7 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     L = len(uv)
     if L < config.min_tracks:
         raise DegenerateMotionError(f"rigid front end: {L} tracks (need {config.min_tracks})")
+    noise_px = track_noise_px(uv, focal)
     # The fit: tracks spread over the list (not the longest: silhouette points that slide live long),
     # each subsampled evenly; every track is checked against the fit after.
     fit_set = evenly_spaced(L, config.max_fit_tracks).tolist()
@@ -671,7 +701,7 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
 
     best = None
     for a0, p0 in candidates():
-        fit = _fit_from_start(uv, deltas, a0, p0, focal, config)
+        fit = _fit_from_start(uv, deltas, a0, p0, focal, config, noise_px)
         if best is None or fit[0] < best[0]:
             best = fit
         if best[5] >= config.enough_inlier_fraction * n_fit:
@@ -683,7 +713,7 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     _, a, p, tracks, X, _ = best
     axis_std = _axis_std(tracks, a, p, X, focal, config)
     track_rms = _track_rms(_Tracks.of(all_uv, all_deltas), a, p, focal)
-    threshold = rms_threshold(track_rms, config)
+    threshold = rms_threshold(track_rms, config, noise_px)
     keep = track_rms <= threshold
     n_in, n_need = int(keep.sum()), max(config.min_tracks, int(np.ceil(config.min_inlier_fraction * L)))
     if n_in < n_need:

@@ -27,6 +27,7 @@ from solver.rigid_axis import (
     rigid_axis_of_motion,
     rms_threshold,
     sphere_directions,
+    track_noise_px,
 )
 
 K = np.array([[1380.0, 0.0, 960.0], [0.0, 1380.0, 540.0], [0.0, 0.0, 1.0]])
@@ -273,10 +274,24 @@ def test_a_far_camera_with_sliding_tracks_still_gives_the_axis():
 def test_the_track_threshold_follows_the_tracks_noise():
     config = RigidAxisConfig()
     quiet = np.full(20, 0.3)
-    assert rms_threshold(quiet, config) == config.max_track_rms_px
+    assert rms_threshold(quiet, config, 0.2) == config.max_track_rms_px
     noisy = np.concatenate([np.full(15, 1.4), np.full(5, 30.0), [np.inf]])  # 1 px noise, 5 sliding, 1 not fitted
-    assert rms_threshold(noisy, config) == pytest.approx(2.8)
-    assert rms_threshold(np.full(3, np.inf), config) == config.max_track_rms_px
+    assert rms_threshold(noisy, config, 1.0) == pytest.approx(2.8)
+    # the same residuals from jitter-free tracks are a misfit of the model, not noise: at most the
+    # tracker's smooth error
+    assert rms_threshold(noisy, config, 0.0) == pytest.approx(1.5)
+    assert rms_threshold(np.full(20, 0.6), config, 0.0) == pytest.approx(1.2)
+    assert rms_threshold(np.full(3, np.inf), config, 1.0) == config.max_track_rms_px
+
+
+def test_the_jitter_estimate_reads_the_noise_not_the_path():
+    rng = np.random.default_rng(3)
+    s = np.linspace(0.0, 1.0, 40)[:, None]
+    arcs = [np.column_stack([np.cos(s[:, 0] + k), np.sin(s[:, 0] + k)]) * 0.1 for k in range(30)]  # smooth curves
+    assert track_noise_px(arcs, 1000.0) < 0.05
+    noisy = [a + rng.normal(0.0, 0.7 / 1000.0, a.shape) for a in arcs]  # 0.7 px per coordinate
+    assert track_noise_px(noisy, 1000.0) == pytest.approx(0.7, rel=0.1)
+    assert track_noise_px([np.zeros((2, 2))], 1000.0) == 0.0
 
 
 def test_one_pixel_of_noise_still_gives_the_axis():
