@@ -84,6 +84,8 @@ class Acquisition:
         frames: F images (H, W, 3) uint8 RGB to track, or None when ``tracks`` are given.
         tracks: keypoint tracks (e.g. the simulator's oracle), or None to track ``frames``.
         seconds: wall time of the acquisition's parts (e.g. "render", "tracking").
+        velocities: (F,) rad/s, the turning joint's velocity at each frame as its log gives it, when the
+            log is timed (the bundle adjustment then estimates the joint-camera time offset); None: unknown.
     """
 
     q_start: FloatArray
@@ -92,6 +94,7 @@ class Acquisition:
     frames: Sequence[ImageArray] | None = None
     tracks: Sequence[KeypointTrack] | None = None
     seconds: dict[str, float] = field(default_factory=dict)
+    velocities: FloatArray | None = None
 
 
 class MotionExecutor(Protocol):
@@ -290,7 +293,7 @@ class CalibrationSession:
         tracks = acquired.tracks
         if tracks is None:
             t0 = time.perf_counter()
-            tracks = self.track(acquired.frames or [], acquired.deltas)
+            tracks = self.track(acquired.frames or [], acquired.deltas, acquired.velocities)
             seconds["tracking"] = time.perf_counter() - t0
         self.robot.set_q(acquired.q_end)
         seconds["transit"] = transit.seconds
@@ -306,9 +309,22 @@ class CalibrationSession:
         self.n_motions += 1
         return outcome
 
-    def track(self, frames: Sequence[ImageArray], deltas: FloatArray) -> list[KeypointTrack]:
-        """Keypoint tracks of one motion's frames (F images) with the joint offset deltas (F,) rad of each."""
-        return list(track_keypoints(frames, deltas, self.config.tracker).tracks)
+    def track(self, frames: Sequence[ImageArray], deltas: FloatArray,
+              velocities: FloatArray | None = None) -> list[KeypointTrack]:
+        """Keypoint tracks of one motion's frames (F images) with the joint offset deltas (F,) rad of each.
+
+        With ``velocities`` (F,) rad/s (a timed joint log) each track also carries the joint's velocity at
+        its frames: the tracker hands each track the values of its frames from the per-frame array it is
+        given, so given the frame indices each track tells which frames it spans.
+        """
+        if velocities is None:
+            return list(track_keypoints(frames, deltas, self.config.tracker).tracks)
+        indexed = track_keypoints(frames, np.arange(len(deltas), dtype=np.float64), self.config.tracker).tracks
+        tracks = []
+        for t in indexed:
+            k = np.rint(t.delta).astype(np.int64)
+            tracks.append(KeypointTrack(t.pixels, np.asarray(deltas)[k], np.asarray(velocities)[k]))
+        return tracks
 
     def replay(self, q_start: FloatArray, joint: int, deltas: FloatArray, tracks: Sequence[KeypointTrack]
                ) -> MotionOutcome:
@@ -601,18 +617,10 @@ def track_recorded(session: CalibrationSession, frames: Sequence[ImageArray], mo
                    ) -> list[KeypointTrack]:
     """Keypoint tracks of a recorded motion's frames, with the joint's velocity at each frame when it is known.
 
-    The tracker hands each track the values of its frames from the per-frame array it is given; given the
-    frame indices, each track tells which frames it spans, and takes the motion's delta (F,) rad and
-    ``joint_velocity`` (F,) rad/s there (what the bundle adjustment's time-offset estimate reads).
+    The motion's delta (F,) rad and ``joint_velocity`` (F,) rad/s (what the bundle adjustment's time-offset
+    estimate reads) go to ``CalibrationSession.track``.
     """
-    if motion.joint_velocity is None:
-        return session.track(frames, motion.delta)
-    indexed = session.track(frames, np.arange(motion.n_frames, dtype=np.float64))
-    tracks = []
-    for t in indexed:
-        k = np.rint(t.delta).astype(np.int64)
-        tracks.append(KeypointTrack(t.pixels, motion.delta[k], motion.joint_velocity[k]))
-    return tracks
+    return session.track(frames, motion.delta, motion.joint_velocity)
 
 
 def estimate_status(state: CalibrationState) -> str:

@@ -40,6 +40,12 @@ class EnvConfig:
         joint_speed: rad/s of the sweeping joint; with ``fps`` it sets the frames per motion.
         fps: camera frame rate, Hz.
         frames_per_motion: fixed number of frames per sweep (None: from joint_speed and fps).
+        joint_latency_s: s, the joint log is stamped this late against the camera (d = t_joint - t_camera,
+            ``arc_env.robot.timing``; within +-0.1 s). Not 0: the deltas handed on with a sweep's frames
+            are the log's at each exposure, read without knowing d -- delta(t - d) of the sweep at
+            ``joint_speed``, resting before and after -- with the log's velocity there, so the bundle
+            adjustment estimates d as it does for a recording (``arc-calib record --joint-latency-ms``).
+            0 (default): the exact deltas and no velocities.
         collision_step_m: m; a sweep is checked at steps that move no point by more than this.
         camera_target: (3,) m, base frame: where sampled cameras look.
         camera_distance: (min, max) m from the target for sampled cameras.
@@ -66,6 +72,7 @@ class EnvConfig:
     joint_speed: float = 1.0
     fps: float = 30.0
     frames_per_motion: int | None = None
+    joint_latency_s: float = 0.0
     collision_step_m: float = 0.005
     camera_target: tuple[float, float, float] = (0.3, 0.0, 0.45)
     camera_distance: tuple[float, float] = (1.0, 2.5)
@@ -88,6 +95,8 @@ class EnvConfig:
             raise InvalidInputError("joint_speed and fps must be > 0")
         if self.frames_per_motion is not None and self.frames_per_motion < 3:
             raise InvalidInputError("frames_per_motion must be >= 3")
+        if not abs(self.joint_latency_s) <= 0.1:
+            raise InvalidInputError(f"joint_latency_s must be within +-0.1 s, got {self.joint_latency_s}")
         if not 0 < self.camera_distance[0] <= self.camera_distance[1]:
             raise InvalidInputError("camera_distance must be (min, max) with 0 < min <= max")
 
@@ -295,22 +304,48 @@ class ArcCalibEnv(gym.Env):
         n = c.frames_per_motion or max(3, int(np.ceil(abs(delta) / c.joint_speed * c.fps)) + 1)
         return np.linspace(0.0, delta, n)
 
+    def logged_deltas(self, deltas: FloatArray) -> tuple[FloatArray, FloatArray | None]:
+        """What a joint log stamped ``joint_latency_s`` late gives at a sweep's frames: deltas and velocities.
+
+        The sweep turns at ``joint_speed`` from 0 to ``deltas[-1]`` (deltas (F,) rad, evenly spaced), so frame
+        k is exposed at t_k = |deltas[k]| / joint_speed; read at t_k, a log stamped d late gives the turn at
+        t_k - d (0 before the start, ``deltas[-1]`` after the end) and the velocity there (0 at rest).
+        Returns ((F,) rad, (F,) rad/s), or (deltas, None) without a latency.
+        """
+        d = self.config.joint_latency_s
+        if d == 0.0:
+            return deltas, None
+        speed = self.config.joint_speed * np.sign(deltas[-1])
+        duration = abs(deltas[-1]) / self.config.joint_speed
+        t = np.abs(deltas) / self.config.joint_speed - d
+        moving = (t > 0.0) & (t < duration)
+        return speed * np.clip(t, 0.0, duration), np.where(moving, speed, 0.0)
+
     def execute(self, q: FloatArray, joint: int, delta: float) -> Acquisition:
-        """The session's ``MotionExecutor``: render the sweep (or project the oracle's mesh points)."""
+        """The session's ``MotionExecutor``: render the sweep (or project the oracle's mesh points).
+
+        Frames show the true turns; the deltas handed on are the joint log's (``logged_deltas``).
+        """
         deltas = self.sweep_deltas(delta)
+        logged, velocities = self.logged_deltas(deltas)
         q_end = q.copy()
         q_end[joint] += delta
         if self.config.oracle_keypoints:
             t0 = time.perf_counter()
-            tracks = self._oracle_tracks(q, joint, deltas)
-            return Acquisition(q, q_end, deltas, tracks=tracks,
+            tracks = self._oracle_tracks(q, joint, deltas, logged, velocities)
+            return Acquisition(q, q_end, logged, tracks=tracks,
                                seconds={"render": 0.0, "tracking": time.perf_counter() - t0})
         t0 = time.perf_counter()
         frames = self.scene.render_sweep(q, joint, deltas, self.config.joint_speed, self.np_random)
-        return Acquisition(q, q_end, deltas, frames=frames, seconds={"render": time.perf_counter() - t0})
+        return Acquisition(q, q_end, logged, frames=frames, seconds={"render": time.perf_counter() - t0},
+                           velocities=velocities)
 
-    def _oracle_tracks(self, q: FloatArray, joint: int, deltas: FloatArray) -> list[KeypointTrack]:
+    def _oracle_tracks(self, q: FloatArray, joint: int, deltas: FloatArray, logged: FloatArray,
+                       velocities: FloatArray | None) -> list[KeypointTrack]:
         """Mesh points of the moving links projected with the true camera, plus Gaussian noise.
+
+        Points are projected at the true turns ``deltas`` (F,) rad and labelled with the log's ``logged``
+        (F,) rad and ``velocities`` (F,) rad/s (``logged_deltas``).
 
         Points are drawn from the vertices of the rendered geoms that the joint moves; occlusion is
         ignored (the oracle is a floor for the geometry, not a renderer). A point is kept over the
@@ -333,7 +368,8 @@ class ArcCalibEnv(gym.Env):
         for p in range(len(body)):
             frames = np.nonzero(ok[:, p])[0]
             if len(frames) >= 3:
-                tracks.append(KeypointTrack(pix[frames, p], deltas[frames]))
+                tracks.append(KeypointTrack(pix[frames, p], logged[frames],
+                                            None if velocities is None else velocities[frames]))
         return tracks
 
     # -- observation, reward, info -------------------------------------------------------------

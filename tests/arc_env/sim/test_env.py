@@ -8,6 +8,7 @@ from gymnasium.utils.env_checker import check_env
 from arc_env.sim.env import ArcCalibEnv, EnvConfig
 from arc_env.sim.scene import Obstacle, SceneConfig
 from planners.random_planner import RandomPlanner
+from solver.errors import InvalidInputError
 
 SMALL = SceneConfig(width=320, height=180)
 #: Reduced-resolution episode (960x540, 10 random motions, fixed seed; it reaches a few mm and a few
@@ -195,3 +196,36 @@ def test_make_vec_builds_independent_envs():
         assert not np.allclose(poses[0], poses[1])  # different seeds, different camera poses
     finally:
         envs.close()
+
+
+def test_a_late_joint_log_gives_the_logs_deltas_and_the_offset_is_estimated():
+    config = EnvConfig(scene=SMALL, max_motions=8, oracle_keypoints=True, oracle_noise_px=0.2, joint_latency_s=0.02)
+    e = ArcCalibEnv(config)
+    try:
+        for delta in (0.6, -0.45):
+            true = e.sweep_deltas(delta)
+            logged, velocity = e.logged_deltas(true)
+            lag = config.joint_speed * config.joint_latency_s  # rad the log trails by while the joint turns
+            expected = np.sign(delta) * np.clip(np.abs(true) - lag, 0.0, abs(delta))
+            np.testing.assert_allclose(logged, expected, atol=1e-12)
+            assert logged[0] == 0.0 and np.all(np.abs(logged) <= np.abs(true) + 1e-12)
+            moving = (np.abs(true) > lag) & (np.abs(true) < abs(delta) + lag)
+            np.testing.assert_array_equal(velocity, np.where(moving, np.sign(delta) * config.joint_speed, 0.0))
+        obs, _ = e.reset(seed=2)
+        planner = RandomPlanner(e.session, np.random.default_rng(2))
+        for _ in range(8):
+            obs, _, terminated, truncated, info = e.step(planner.plan(obs))
+        state = e.session.calibrator.state
+        assert state.time_offset_s is not None and state.time_offset_std_s is not None
+        # first order in the offset: a few ms short at the sweeps' abrupt starts (bench_latency), never far
+        assert abs(state.time_offset_s - 0.02) < 0.004
+        assert info["rot_error_rad"] < EPISODE_MAX_ROT_RAD and info["trans_error_m"] < EPISODE_MAX_TRANS_M
+    finally:
+        e.close()
+    with pytest.raises(InvalidInputError, match="joint_latency_s"):
+        EnvConfig(joint_latency_s=0.2)
+    exact = ArcCalibEnv(EnvConfig(scene=SMALL))
+    try:
+        assert exact.logged_deltas(np.linspace(0, 0.5, 5))[1] is None
+    finally:
+        exact.close()
