@@ -272,7 +272,8 @@ def test_a_far_camera_with_sliding_tracks_still_gives_the_axis():
 
 
 def test_the_track_threshold_follows_the_tracks_noise():
-    config = RigidAxisConfig()
+    assert rms_threshold(np.full(20, 5.0), RigidAxisConfig(), 3.0) == RigidAxisConfig().max_track_rms_px  # off
+    config = RigidAxisConfig(noise_factor=2.0)
     quiet = np.full(20, 0.3)
     assert rms_threshold(quiet, config, 0.2) == config.max_track_rms_px
     noisy = np.concatenate([np.full(15, 1.4), np.full(5, 30.0), [np.inf]])  # 1 px noise, 5 sliding, 1 not fitted
@@ -299,8 +300,8 @@ def test_one_pixel_of_noise_still_gives_the_axis():
     point = np.array([0.05, -0.1, 1.1])
     obs, axis = _scene(4, np.array([0.3, 1.0, 0.4]), point, n_tracks=30, sliding=8, noise_px=1.0)
     with pytest.raises(DegenerateMotionError, match="move rigidly together"):
-        rigid_axis_of_motion(obs, CAMERA, RigidAxisConfig(noise_factor=1e-3))
-    fit = rigid_axis_of_motion(obs, CAMERA)
+        rigid_axis_of_motion(obs, CAMERA)  # the fixed 1 px threshold (the default)
+    fit = rigid_axis_of_motion(obs, CAMERA, RigidAxisConfig(noise_factor=2.0))
     assert _angle(fit.axis_cam, axis) < np.radians(1.0)
     assert fit.track_inliers[:30].sum() >= 27
     # the limit: at this noise a slow slide (25 px/rad) partly hides in another depth, and some pass
