@@ -55,6 +55,7 @@ from scipy.spatial.transform import Rotation
 
 from arc_env.robot.model import RobotModel
 from arc_env.robot.segmentation import SegmentConfig, segment_motions
+from arc_env.robot.session import motion_refusal_reason
 from arc_env.robot.timing import check_times
 from planners.collision import CollisionChecker
 from planners.context import observation_from_estimate
@@ -167,19 +168,10 @@ class ScriptContext:
         return self.config.max_delta
 
     def refusal_reason(self, q: FloatArray, joint: int, delta: float) -> str:
-        """Why the motion (q (n,) rad, joint, delta rad) is not valid, or "" if it is."""
-        r, c = self.robot, self.config
-        if np.any(q < r.lower - 1e-9) or np.any(q > r.upper + 1e-9):
-            return "Q is outside the joint limits"
-        if not c.min_delta <= abs(delta) <= c.max_delta + 1e-9:
-            return f"|delta| = {abs(delta):.3f} rad is outside [{c.min_delta}, {c.max_delta}] rad"
-        if not r.lower[joint] - 1e-9 <= q[joint] + delta <= r.upper[joint] + 1e-9:
-            return "the sweep leaves the joint's limits"
-        hit, why = self.checker.in_collision(q)
-        if hit:
-            return f"start configuration in collision: {why}"
-        free, why = self.checker.sweep_free(q, joint, delta, c.collision_step_m)
-        return "" if free else f"sweep in collision: {why}"
+        """Why the motion (q (n,) rad, joint, delta rad) is not valid, or "" if it is (the session's check)."""
+        c = self.config
+        return motion_refusal_reason(self.robot, self.checker, c.min_delta, c.max_delta, c.collision_step_m,
+                                     q, joint, delta)
 
 
 @dataclass(frozen=True)

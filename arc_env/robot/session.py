@@ -46,6 +46,35 @@ from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig, Foca
 ONLINE_CALIBRATOR = CalibratorConfig(max_tracks_per_motion=40, max_frames_per_track=15)
 
 
+def motion_refusal_reason(robot: RobotModel, checker: CollisionChecker, min_delta: float, max_delta: float,
+                          collision_step_m: float, q: FloatArray, joint: int, delta: float) -> str:
+    """Why an exploratory motion (q (n,) rad, joint, delta rad) is not valid on ``robot``, or "" if it is.
+
+    The joint exists, Q is within the limits, min_delta <= |delta| <= max_delta (rad), the sweep stays
+    within the joint's limits, and neither Q nor the sweep (checked every ``collision_step_m`` m) collides.
+    """
+    r = robot
+    if not 0 <= joint < r.n_joints:
+        return f"joint {joint} is not in [0, {r.n_joints})"
+    out = np.nonzero((q < r.lower - 1e-9) | (q > r.upper + 1e-9))[0]
+    if out.size:
+        k = int(out[0])
+        return f"Q[{k}] = {q[k]:.3f} rad is outside the limits [{r.lower[k]:.3f}, {r.upper[k]:.3f}]"
+    if abs(delta) < min_delta:
+        return f"|delta| = {abs(delta):.3f} rad is below the minimum {min_delta} rad"
+    if abs(delta) > max_delta + 1e-9:
+        return f"|delta| = {abs(delta):.3f} rad is above the maximum {max_delta} rad"
+    end = q[joint] + delta
+    if not r.lower[joint] - 1e-9 <= end <= r.upper[joint] + 1e-9:
+        return (f"the sweep ends at {end:.3f} rad, outside joint {joint}'s limits "
+                f"[{r.lower[joint]:.3f}, {r.upper[joint]:.3f}]")
+    hit, why = checker.in_collision(q)
+    if hit:
+        return f"start configuration in collision: {why}"
+    free, why = checker.sweep_free(q, joint, delta, collision_step_m)
+    return "" if free else f"sweep in collision: {why}"
+
+
 @dataclass(frozen=True)
 class SessionConfig:
     """How a session checks, moves and calibrates.
@@ -237,28 +266,9 @@ class CalibrationSession:
 
     def refusal_reason(self, q: FloatArray, joint: int, delta: float) -> str:
         """Why the motion (q (n,) rad, joint, delta rad) would be refused, or "" if it is valid."""
-        r, c = self.robot, self.config
-        if not 0 <= joint < r.n_joints:
-            return f"joint {joint} is not in [0, {r.n_joints})"
-        out = np.nonzero((q < r.lower - 1e-9) | (q > r.upper + 1e-9))[0]
-        if out.size:
-            k = int(out[0])
-            return f"Q[{k}] = {q[k]:.3f} rad is outside the limits [{r.lower[k]:.3f}, {r.upper[k]:.3f}]"
-        if abs(delta) < c.min_delta:
-            return f"|delta| = {abs(delta):.3f} rad is below the minimum {c.min_delta} rad"
-        if abs(delta) > c.max_delta + 1e-9:
-            return f"|delta| = {abs(delta):.3f} rad is above the maximum {c.max_delta} rad"
-        end = q[joint] + delta
-        if not r.lower[joint] - 1e-9 <= end <= r.upper[joint] + 1e-9:
-            return (f"the sweep ends at {end:.3f} rad, outside joint {joint}'s limits "
-                    f"[{r.lower[joint]:.3f}, {r.upper[joint]:.3f}]")
-        hit, why = self.checker.in_collision(q)
-        if hit:
-            return f"start configuration in collision: {why}"
-        free, why = self.checker.sweep_free(q, joint, delta, c.collision_step_m)
-        if not free:
-            return f"sweep in collision: {why}"
-        return ""
+        c = self.config
+        return motion_refusal_reason(self.robot, self.checker, c.min_delta, c.max_delta, c.collision_step_m,
+                                     q, joint, delta)
 
     # -- the loop --------------------------------------------------------------------------------
     def refuse(self, reason: str) -> StepResult:
