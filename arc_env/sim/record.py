@@ -150,6 +150,19 @@ class RecordSettings:
                                     f"got {self.joint_latency_s * 1e3} ms")
 
 
+#: The ground truth's note beside a recording directory.
+_RECORDING_NOTE = "simulation ground truth of the recording beside this file; not part of the recording"
+
+
+def _ground_truth(note: str, out: Path, T_camera_base: FloatArray, s: RecordSettings, **more: object) -> dict:
+    """The ground-truth file's fields every format writes (the true pose (4, 4), three ways), then ``more``."""
+    return {"note": note, "recording": out.name, "T_camera_base": T_camera_base.tolist(),
+            "translation": T_camera_base[:3, 3].tolist(),
+            "quaternion_xyzw": quaternion_xyzw_from_matrix(T_camera_base[:3, :3]).tolist(),
+            "seed": s.seed, "robot": s.robot.path or "gymnasium-robotics Franka Panda",
+            "joint_latency_s": s.joint_latency_s, **more}
+
+
 def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | None = None) -> dict:
     """Run the episode and write the recording and its ground truth; returns the ground truth dict.
 
@@ -208,17 +221,7 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
             if on_motion is not None:
                 on_motion(f"joint {names[joint]}, delta {delta:+.2f} rad, {len(deltas)} frames")
         T_camera_base = env.T_camera_base_true
-        truth = {
-            "note": "simulation ground truth of the recording beside this file; not part of the recording",
-            "recording": out.name,
-            "T_camera_base": T_camera_base.tolist(),
-            "translation": T_camera_base[:3, 3].tolist(),
-            "quaternion_xyzw": quaternion_xyzw_from_matrix(T_camera_base[:3, :3]).tolist(),
-            "seed": s.seed,
-            "motions": s.motions,
-            "robot": s.robot.path or "gymnasium-robotics Franka Panda",
-            "joint_latency_s": s.joint_latency_s,
-        }
+        truth = _ground_truth(_RECORDING_NOTE, out, T_camera_base, s, motions=s.motions)
         writer.close()
         writer = None
         write_files_atomic({truth_path: json.dumps(truth, indent=2) + "\n"})
@@ -352,21 +355,10 @@ def record_trajectory(s: RecordSettings, env: ArcCalibEnv, target: CameraIntrins
                                       f"{len(frames)} frames")
         seconds.until(math.inf)
         T_camera_base = env.T_camera_base_true
-        truth = {
-            "note": "simulation ground truth of the recording beside this file; not part of the recording",
-            "recording": out.name,
-            "format": s.format,
-            "T_camera_base": T_camera_base.tolist(),
-            "translation": T_camera_base[:3, 3].tolist(),
-            "quaternion_xyzw": quaternion_xyzw_from_matrix(T_camera_base[:3, :3]).tolist(),
-            "seed": s.seed,
-            "robot": s.robot.path or "gymnasium-robotics Franka Panda",
-            "joint_latency_s": s.joint_latency_s,
-            "time_offset_s": s.joint_latency_s,
-            **about,
-            "segments": [{"joint": names[seg.joint or 0], "delta": seg.delta, "t_start": seg.t_start,
-                          "t_stop": seg.t_stop} for seg in segments],
-        }
+        truth = _ground_truth(_RECORDING_NOTE, out, T_camera_base, s, format=s.format,
+                              time_offset_s=s.joint_latency_s, **about,
+                              segments=[{"joint": names[seg.joint or 0], "delta": seg.delta, "t_start": seg.t_start,
+                                         "t_stop": seg.t_stop} for seg in segments])
         writer.close()
         writer = None
         write_files_atomic({ground_truth_path(out): json.dumps(truth, indent=2) + "\n"})
@@ -432,23 +424,11 @@ def _write_bag(s: RecordSettings, env: ArcCalibEnv, q_at: Callable[[FloatArray],
         writer = None
         seconds.until(math.inf)
         T_camera_base = env.T_camera_base_true
-        truth = {
-            "note": "simulation ground truth of the bag beside this file; not part of the bag",
-            "recording": out.name,
-            "format": s.format,
-            "T_camera_base": T_camera_base.tolist(),
-            "translation": T_camera_base[:3, 3].tolist(),
-            "quaternion_xyzw": quaternion_xyzw_from_matrix(T_camera_base[:3, :3]).tolist(),
-            "seed": s.seed,
-            "motions": s.motions,
-            "robot": s.robot.path or "gymnasium-robotics Franka Panda",
-            "robot_model": str(robot_dir / model_name),
-            "base_body": base,
-            "joint_latency_s": s.joint_latency_s,
-            "time_offset_s": s.joint_latency_s,
-            "camera_epoch_s": BAG_EPOCH_S,
-            **about,
-        }
+        truth = _ground_truth("simulation ground truth of the bag beside this file; not part of the bag", out,
+                              T_camera_base, s, **{"format": s.format, "motions": s.motions,
+                                                   "robot_model": str(robot_dir / model_name), "base_body": base,
+                                                   "time_offset_s": s.joint_latency_s,
+                                                   "camera_epoch_s": BAG_EPOCH_S, **about})
         write_files_atomic({ground_truth_path(out): json.dumps(truth, indent=2) + "\n"})
         return truth
     except BaseException:
