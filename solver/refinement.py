@@ -25,7 +25,8 @@ s) with the points marginalized, so the pose's 1-sigma includes what s and the p
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Literal
 
 import numpy as np
 import scipy.sparse as sp
@@ -36,9 +37,11 @@ from scipy.spatial.transform import Rotation
 
 from solver.arrays import FloatArray
 from solver.errors import InsufficientMotionsError, InvalidInputError, TimeOffsetError
-from solver.frames import perturb, rotation_about_axis, skew
+from solver.frames import perturb, pose_difference, rotation_about_axis, skew, transform_from_rt
+from solver.schur import PosePrior, normal_blocks, solve_schur, track_starts
 
 IntArray = NDArray[np.int64]
+Backend = Literal["schur", "scipy"]
 
 
 @dataclass(frozen=True)
@@ -66,6 +69,14 @@ class RefinementConfig:
         time_offset_bound_s: s; the prior's 1-sigma, and the largest |s| accepted: beyond it the
             clocks are too far apart for the first-order model (give the offset, e.g.
             ``arc-calib calibrate --time-offset``).
+        backend: "schur" (``solver.schur``: Levenberg-Marquardt on the normal equations with the points
+            eliminated; needed for incremental updates' pose priors) or "scipy" (TRF/LSMR on the sparse
+            Jacobian, the earlier path). ``max_nfev`` caps either's Jacobian evaluations.
+        track_weights: weight each kept track in the final pass by its own noise, estimated from its
+            residuals after the robust pass, shrunk towards the common sigma with ``weight_prior_dof``
+            degrees of freedom: sigma_t^2 = (nu sigma^2 + RSS_t) / (nu + 2 M_t - 3). Many mediocre tracks
+            then cannot outvote good ones.
+        weight_prior_dof: see ``track_weights``.
     """
 
     cauchy_scale_px: float = 1.0
@@ -76,6 +87,9 @@ class RefinementConfig:
     robust_ftol: float = 1e-5
     estimate_time_offset: bool | None = None
     time_offset_bound_s: float = 0.1
+    backend: Backend = "schur"
+    track_weights: bool = False
+    weight_prior_dof: float = 10.0
 
     def __post_init__(self) -> None:
         if not self.time_offset_bound_s > 0:
@@ -207,12 +221,17 @@ class _Problem:
     With ``prior_weight`` (px per s) given, the time offset s (the module doc) is the 7th parameter
     and one last residual prior_weight * s is its prior; the "pose" blocks below then span
     (omega, tau, s). Without it the problem is the 6-parameter one, computed exactly as before.
+
+    ``scale`` (P,), when given, multiplies each observation's residual and Jacobian rows: the weights of
+    a weighted least squares (``RefinementConfig.track_weights``), in units that keep residuals in px.
     """
 
-    def __init__(self, tracks: TrackSet, T0: FloatArray, prior_weight: float | None = None):
+    def __init__(self, tracks: TrackSet, T0: FloatArray, prior_weight: float | None = None,
+                 scale: FloatArray | None = None):
         self.tracks = tracks
         self.T0 = T0
         self.prior_weight = prior_weight
+        self.scale = scale
         self.n_pose = 6 if prior_weight is None else 7
         if prior_weight is not None and (tracks.velocity is None or tracks.axis is None or tracks.delta is None):
             raise InvalidInputError("a time-offset estimate needs every track's joint velocity")
@@ -253,7 +272,8 @@ class _Problem:
     def residuals(self, x: FloatArray) -> FloatArray:
         """(2P,) float64, px: reprojection errors (then the prior's residual when s is estimated)."""
         pc = self._camera_points(x)[0]
-        r = ((pc[:, :2] / pc[:, 2:] - self.tracks.uv) * self.tracks.focal).ravel()
+        r = (pc[:, :2] / pc[:, 2:] - self.tracks.uv) * self.tracks.focal
+        r = (r if self.scale is None else r * self.scale[:, None]).ravel()
         return r if self.prior_weight is None else np.append(r, self.prior_weight * x[6])
 
     def csr(self, blocks: FloatArray, prior_row: FloatArray | None) -> sp.csr_matrix:
@@ -295,10 +315,12 @@ class _Problem:
         d_omega = np.cross(DM, (q - t)[:, None, :]) - np.cross(D, (pc - t)[:, None, :])
         d_omega = (d_omega.reshape(2 * P, 3) @ _left_jacobian(x[:3])).reshape(P, 2, 3)
         if self.prior_weight is None:
-            return np.concatenate([d_omega, D - DM, DM], axis=2)
-        arm = (pc - t) @ R - self.obs_pivot  # p_base - d_b
-        d_s = np.cross(self.obs_axis, arm) @ R.T * tr.velocity[:, None]  # (P, 3): camera point by s
-        return np.concatenate([d_omega, D - DM, np.einsum("pij,pj->pi", D, d_s)[:, :, None], DM], axis=2)
+            blocks = np.concatenate([d_omega, D - DM, DM], axis=2)
+        else:
+            arm = (pc - t) @ R - self.obs_pivot  # p_base - d_b
+            d_s = np.cross(self.obs_axis, arm) @ R.T * tr.velocity[:, None]  # (P, 3): camera point by s
+            blocks = np.concatenate([d_omega, D - DM, np.einsum("pij,pj->pi", D, d_s)[:, :, None], DM], axis=2)
+        return blocks if self.scale is None else blocks * self.scale[:, None, None]
 
 
 @dataclass(frozen=True)
@@ -334,6 +356,39 @@ class RefinementResult:
     time_offset_s: float | None = None
     time_offset_std_s: float | None = None
     time_offset_correlation: FloatArray | None = None
+    summaries: tuple[MotionSummary, ...] = ()
+    robust_sigma_px: float | None = None
+
+
+@dataclass(frozen=True)
+class MotionSummary:
+    """What one motion's kept tracks say about the pose, their points marginalized (``refine_increment``).
+
+    Its cost as a function of the pose near the linearization point, the points re-optimized, is
+    0.5 d^T information d + gradient^T d + rss / 2 with d the pose parameters' change from there
+    (``solver.frames`` perturbation, then the time offset's change): the Gauss-Newton expansion.
+
+    Attributes:
+        motion: the motion's index (``TrackSet.motion``).
+        T_lin: (4, 4) float64: the pose it is linearized at.
+        time_offset_lin: s, the time offset there (None without it).
+        information: (n, n) float64: U - W V^-1 W^T of its observations, px^2 per (rad, m[, s])^2.
+        gradient: (n,) float64: the reduced gradient J_p^T r - W V^-1 J_x^T r there, px^2 per (rad, m[, s]).
+        meat: (n, n) float64: sum over its tracks of g_t g_t^T (``clustered_pose_covariance``).
+        rss: px^2, the sum of its squared residuals there.
+        n_residuals: how many residuals (2 per observation).
+        n_tracks: its kept tracks.
+    """
+
+    motion: int
+    T_lin: FloatArray
+    time_offset_lin: float | None
+    information: FloatArray
+    gradient: FloatArray
+    meat: FloatArray
+    rss: float
+    n_residuals: int
+    n_tracks: int
 
 
 class _Whitened:
@@ -419,29 +474,39 @@ _TRUST_SCALE = 32.0
 
 def _solve(tracks: TrackSet, T0: FloatArray, points: FloatArray, loss: str, f_scale: float,
            max_nfev: int, lsmr_tol: float = 1e-12, ftol: float = 1e-9,
-           time_offset: tuple[float, float] | None = None
+           time_offset: tuple[float, float] | None = None, backend: Backend = "schur",
+           scale: FloatArray | None = None, prior: PosePrior | None = None
            ) -> tuple[FloatArray, FloatArray, _Problem, FloatArray, object]:
-    """One least-squares pass from pose T0 and base-frame points (T, 3) (``_Whitened`` coordinates).
+    """One least-squares pass from pose T0 and base-frame points (T, 3).
 
-    ``lsmr_tol`` must be tight (1e-12) far from the optimum, where TRF otherwise stalls; the
-    final pass starts at the robust optimum and converges with a looser one. ``ftol`` is the
-    relative cost change that ends the pass. ``time_offset``: (start s, prior weight px/s) to
-    estimate the time offset too; None not to.
+    ``backend`` "schur": ``solver.schur.solve_schur`` (``max_nfev`` its iterations); "scipy": scipy's TRF
+    in ``_Whitened`` coordinates, where ``lsmr_tol`` must be tight (1e-12) far from the optimum (TRF
+    otherwise stalls) and the final pass, starting at the robust optimum, converges with a looser one.
+    ``ftol`` is the relative cost change that ends the pass. ``time_offset``: (start s, prior weight px/s)
+    to estimate the time offset too; None not to. ``scale``: (P,) each observation's residual multiplier
+    (``_Problem``). ``prior``: a quadratic cost on the pose parameters (Schur backend only).
 
     Returns:
-        pose (4, 4), base points (T, 3), the problem, its parameters x at the solution, and
-        scipy's result (whose ``fun`` is the residual vector there, the prior's last with s).
+        pose (4, 4), base points (T, 3), the problem, its parameters x at the solution, and the
+        solver's result (whose ``fun`` is the residual vector there, the prior's last with s).
     """
-    problem = _Problem(tracks, T0, None if time_offset is None else time_offset[1])
+    problem = _Problem(tracks, T0, None if time_offset is None else time_offset[1], scale)
     n = problem.n_pose
     q0 = points @ T0[:3, :3].T + T0[:3, 3]
     pose0 = np.zeros(6) if time_offset is None else np.append(np.zeros(6), time_offset[0])
-    white = _Whitened(problem, np.concatenate([pose0, q0.ravel()]))
-    sol = least_squares(white.residuals, np.zeros(n + 3 * tracks.n_tracks), jac=white.jacobian,
-                        method="trf", loss=loss, f_scale=f_scale, tr_solver="lsmr", max_nfev=max_nfev,
-                        x_scale=_TRUST_SCALE,
-                        tr_options={"atol": lsmr_tol, "btol": lsmr_tol}, xtol=1e-10, ftol=ftol)
-    x = white.native(sol.x)
+    start = np.concatenate([pose0, q0.ravel()])
+    if backend == "schur":
+        sol = solve_schur(problem, start, loss, f_scale, max_nfev, ftol, prior)
+        x = sol.x
+    else:
+        if prior is not None:
+            raise InvalidInputError("the scipy backend takes no pose prior (incremental updates need backend='schur')")
+        white = _Whitened(problem, start)
+        sol = least_squares(white.residuals, np.zeros(n + 3 * tracks.n_tracks), jac=white.jacobian,
+                            method="trf", loss=loss, f_scale=f_scale, tr_solver="lsmr", max_nfev=max_nfev,
+                            x_scale=_TRUST_SCALE,
+                            tr_options={"atol": lsmr_tol, "btol": lsmr_tol}, xtol=1e-10, ftol=ftol)
+        x = white.native(sol.x)
     R, t = problem.pose(x)
     return perturb(T0, x[:6]), (x[n:].reshape(-1, 3) - t) @ R, problem, x, sol
 
@@ -510,6 +575,78 @@ def _pose_covariances(problem: _Problem, x: FloatArray, sigma2: float,
     scale = T / max(T - 1, 1) * m / max(m - n, 1)
     C = scale * S_inv @ (g.T @ g) @ S_inv
     return sigma2 * S_inv, 0.5 * (C + C.T)
+
+
+def _motion_summaries(problem: _Problem, x: FloatArray, residuals: FloatArray) -> tuple[MotionSummary, ...]:
+    """Each motion's ``MotionSummary`` at the optimum x (the time offset's prior row left out).
+
+    ``residuals``: (2P,) float64, px, the observations' residuals at x.
+    """
+    n = problem.n_pose
+    tracks = problem.tracks
+    r = residuals.reshape(-1, 2)
+    U, W, V, gp, gx = normal_blocks(problem.jacobian_blocks(x), r, np.ones(r.shape[0]), track_starts(tracks.track))
+    WVinv = np.matmul(W, np.linalg.inv(V + 1e-12 * np.eye(3)))
+    g = gp - np.matmul(WVinv, gx[:, :, None])[:, :, 0]  # (T, n): each track's score, its point marginalized
+    info = U - np.matmul(WVinv, W.transpose(0, 2, 1))  # (T, n, n)
+    rss = np.bincount(tracks.track, weights=np.sum(r**2, axis=1), minlength=tracks.n_tracks)
+    n_obs = np.bincount(tracks.track, minlength=tracks.n_tracks)
+    R, t = problem.pose(x)
+    T = transform_from_rt(R, t)
+    s_lin = float(x[6]) if n == 7 else None
+    motions, first = np.unique(tracks.motion, return_index=True)  # tracks are grouped by motion
+    out = []
+    for m, a, b in zip(motions, first, np.append(first[1:], tracks.n_tracks), strict=True):
+        H = info[a:b].sum(axis=0)
+        out.append(MotionSummary(int(m), T, s_lin, 0.5 * (H + H.T), g[a:b].sum(axis=0), g[a:b].T @ g[a:b],
+                                 float(rss[a:b].sum()), 2 * int(n_obs[a:b].sum()), int(b - a)))
+    return tuple(out)
+
+
+def _summary_offsets(summaries: Sequence[MotionSummary], T0: FloatArray, s0: float | None) -> FloatArray:
+    """(M, n): each summary's pose parameters d at the anchor (T0, s0): Log(R0 R_lin^T), t0 - t_lin[, s0 - s_lin].
+
+    To first order in the rotations' difference (they are within a few sigma of each other).
+    """
+    rows = []
+    for m in summaries:
+        xi = pose_difference(m.T_lin, T0)
+        rows.append(xi if s0 is None else np.append(xi, s0 - (m.time_offset_lin or 0.0)))
+    return np.array(rows)
+
+
+def summaries_prior(summaries: Sequence[MotionSummary], T0: FloatArray, s0: float | None = None) -> PosePrior:
+    """The summed cost of ``summaries`` as a quadratic in the pose parameters about (T0, s0).
+
+    Args:
+        summaries: the earlier motions (``MotionSummary``), all of the same pose size n.
+        T0: (4, 4) float64: the anchor pose (the parameters' zero).
+        s0: s, the anchor's time offset (None: no time offset, n = 6); 0 when the parameter is s itself.
+    """
+    d = _summary_offsets(summaries, T0, s0)
+    H = sum(m.information for m in summaries)
+    g = sum(m.information @ dm + m.gradient for m, dm in zip(summaries, d, strict=True))
+    c = sum(0.5 * dm @ m.information @ dm + m.gradient @ dm + 0.5 * m.rss for m, dm in zip(summaries, d, strict=True))
+    return PosePrior(np.asarray(H, dtype=np.float64), np.asarray(g, dtype=np.float64), float(c))
+
+
+def summaries_covariance(summaries: Sequence[MotionSummary], prior_row: FloatArray | None = None
+                         ) -> tuple[FloatArray, float]:
+    """The conservative pose covariance (n, n) of all ``summaries`` (``refine``'s), and the residual sigma, px.
+
+    ``prior_row`` (n,): the time offset's prior residual's row, counted once.
+    """
+    S = sum(m.information for m in summaries)
+    if prior_row is not None:
+        S = S + np.outer(prior_row, prior_row)
+    meat = sum(m.meat for m in summaries)
+    m_res = sum(m.n_residuals for m in summaries)
+    T = sum(m.n_tracks for m in summaries)
+    n_par = 3 * T + S.shape[0]
+    sigma2 = sum(m.rss for m in summaries) / max(m_res - n_par, 1)
+    S_inv = np.linalg.inv(S)
+    C = T / max(T - 1, 1) * m_res / max(m_res - n_par, 1) * S_inv @ meat @ S_inv
+    return conservative_covariance(sigma2 * S_inv, 0.5 * (C + C.T)), float(np.sqrt(sigma2))
 
 
 def conservative_covariance(model: FloatArray, clustered: FloatArray) -> FloatArray:
@@ -618,7 +755,7 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     sub = _subset(tracks, keep)
     T, pts, problem, x, sol = _solve(sub, T_init, points[keep], "cauchy", config.cauchy_scale_px,
                                      config.max_nfev, ftol=config.robust_ftol,
-                                     time_offset=(0.0, 1.0 / bound) if estimate else None)
+                                     time_offset=(0.0, 1.0 / bound) if estimate else None, backend=config.backend)
     res = sol.fun[:2 * sub.uv.shape[0]].reshape(-1, 2)
     track_rms = np.sqrt(np.bincount(sub.track, weights=np.sum(res**2, axis=1), minlength=sub.n_tracks)
                         / np.maximum(np.bincount(sub.track, minlength=sub.n_tracks), 1) / 2)
@@ -627,12 +764,20 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     if good.sum() < 2:
         raise InsufficientMotionsError("fewer than two tracks agree with the refined pose")
     sub2 = _subset(sub, good)
+    scale = None
+    if config.track_weights:
+        rss = np.bincount(sub.track, weights=np.sum(res**2, axis=1), minlength=sub.n_tracks)[good]
+        dof = 2 * np.bincount(sub2.track, minlength=sub2.n_tracks) - 3
+        nu = config.weight_prior_dof
+        track_sigma = np.sqrt((nu * sigma**2 + rss) / (nu + np.maximum(dof, 0)))
+        scale = (max(sigma, 1e-6) / np.maximum(track_sigma, 1e-6))[sub2.track]
     T, pts2, problem, x, sol = _solve(sub2, T, pts[good], "linear", 1.0, config.max_nfev, 1e-8,
-                                      time_offset=(float(x[6]), max(sigma, 1e-6) / bound) if estimate else None)
+                                      time_offset=(float(x[6]), max(sigma, 1e-6) / bound) if estimate else None,
+                                      backend=config.backend, scale=scale)
     fun = sol.fun[:2 * sub2.uv.shape[0]]  # the observations' residuals (the prior's is last, with s)
-    m, n = fun.size, sol.x.size
-    sigma2 = float(np.sum(fun**2) / max(m - n, 1))
-    cov = conservative_covariance(*_pose_covariances(problem, x, sigma2, fun))
+    raw = fun if scale is None else (fun.reshape(-1, 2) / scale[:, None]).ravel()  # px, unweighted
+    summaries = _motion_summaries(problem, x, fun)
+    cov, sigma_fit = summaries_covariance(summaries, problem.prior_row())
     offset = offset_std = correlation = None
     if estimate:
         offset, offset_std = float(x[6]), float(np.sqrt(cov[6, 6]))
@@ -648,8 +793,98 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     inliers[kept_idx] = True
     all_points = np.full((tracks.n_tracks, 3), np.nan)
     all_points[kept_idx] = pts2
-    return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(fun**2))),
-                            float(np.sqrt(sigma2)), offset, offset_std, correlation)
+    return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))),
+                            sigma_fit, offset, offset_std, correlation, summaries, sigma)
+
+
+def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionSummary], sigma_px: float,
+                     config: RefinementConfig | None = None, time_offset_s: float | None = None,
+                     n_earlier_residuals: int | None = None) -> RefinementResult:
+    """Add new motions' tracks to an adjustment whose earlier motions are summarized (incremental, ours).
+
+    The earlier motions enter only through their ``MotionSummary`` (their points marginalized,
+    linearized where they were last solved: ``summaries_prior``); the pose and the new tracks' points
+    are solved as in ``refine`` (a Cauchy pass, the tracks far off the noise dropped, a least-squares
+    pass), with the outlier threshold from the robust sigma pooled over the earlier (``sigma_px``) and
+    the new residuals. Exact to first order in the pose's move from the summaries' linearization points:
+    relinearize (``refine`` over every motion) when it moves by a good fraction of its 1-sigma.
+
+    Args:
+        tracks: the new motions' observations (``build_track_set``; ``motion`` indices distinct from the
+            earlier ones').
+        T0: (4, 4) float64: the pose to start from (the last estimate).
+        earlier: the earlier motions' summaries (``RefinementResult.summaries``), non-empty.
+        sigma_px: px, the earlier adjustment's robust noise estimate (``RefinementResult.robust_sigma_px``).
+        config: settings (the Schur backend is used whatever ``config.backend`` says: scipy's takes no prior).
+        time_offset_s: s, the current time-offset estimate when it is estimated (the summaries then have n = 7).
+        n_earlier_residuals: residuals behind ``sigma_px`` (default: the summaries').
+
+    Returns:
+        The result over all motions: pose and covariance (from every summary, the new ones included), the
+        new tracks' points and inliers, and the new motions' summaries appended to ``earlier``.
+    """
+    config = config or RefinementConfig()
+    if not earlier:
+        raise InvalidInputError("refine_increment needs the earlier motions' summaries (run refine first)")
+    estimate = earlier[0].time_offset_lin is not None
+    if estimate and (tracks.velocity is None or time_offset_s is None):
+        raise InvalidInputError("the earlier motions estimate the time offset: the new tracks need joint velocities "
+                                "and time_offset_s the current estimate")
+    bound = config.time_offset_bound_s
+    points, keep = triangulate_tracks(_turned_by_offset(tracks, time_offset_s) if estimate else tracks, T0)
+    if keep.sum() < 2:
+        raise InsufficientMotionsError("fewer than two new tracks could be triangulated from the pose")
+    sub = _subset(tracks, keep)
+    # The time offset is the problem's 7th parameter itself (not a change from an anchor): the prior's s0 is 0.
+    prior = summaries_prior(earlier, T0, 0.0 if estimate else None)
+    s0 = float(time_offset_s) if estimate else None
+    T, pts, problem, x, sol = _solve(sub, T0, points[keep], "cauchy", config.cauchy_scale_px, config.max_nfev,
+                                     ftol=config.robust_ftol, time_offset=(s0, 1.0 / bound) if estimate else None,
+                                     prior=prior)
+    res = sol.fun[:2 * sub.uv.shape[0]].reshape(-1, 2)
+    n_old = sum(m.n_residuals for m in earlier) if n_earlier_residuals is None else n_earlier_residuals
+    sigma_new = 1.4826 * float(np.median(np.abs(res)))
+    sigma = float(np.sqrt((n_old * sigma_px**2 + res.size * sigma_new**2) / (n_old + res.size)))
+    track_rms = np.sqrt(np.bincount(sub.track, weights=np.sum(res**2, axis=1), minlength=sub.n_tracks)
+                        / np.maximum(np.bincount(sub.track, minlength=sub.n_tracks), 1) / 2)
+    good = track_rms <= max(config.outlier_px, config.outlier_sigmas * sigma)
+    if good.sum() < 1:
+        raise InsufficientMotionsError("no new track agrees with the refined pose")
+    sub2 = _subset(sub, good)
+    scale = None
+    if config.track_weights:
+        rss = np.bincount(sub.track, weights=np.sum(res**2, axis=1), minlength=sub.n_tracks)[good]
+        dof = 2 * np.bincount(sub2.track, minlength=sub2.n_tracks) - 3
+        nu = config.weight_prior_dof
+        track_sigma = np.sqrt((nu * sigma**2 + rss) / (nu + np.maximum(dof, 0)))
+        scale = (max(sigma, 1e-6) / np.maximum(track_sigma, 1e-6))[sub2.track]
+    # The summaries' pose parameters are about T0; after the robust pass the anchor moves to its pose.
+    s1 = float(x[6]) if estimate else None
+    prior = summaries_prior(earlier, T, 0.0 if estimate else None)
+    T, pts2, problem, x, sol = _solve(sub2, T, pts[good], "linear", 1.0, config.max_nfev, 1e-8,
+                                      time_offset=(s1, max(sigma, 1e-6) / bound) if estimate else None,
+                                      scale=scale, prior=prior)
+    fun = sol.fun[:2 * sub2.uv.shape[0]]
+    raw = fun if scale is None else (fun.reshape(-1, 2) / scale[:, None]).ravel()
+    new = _motion_summaries(problem, x, fun)
+    summaries = tuple(earlier) + new
+    cov, sigma_fit = summaries_covariance(summaries, problem.prior_row())
+    offset = offset_std = correlation = None
+    if estimate:
+        offset, offset_std = float(x[6]), float(np.sqrt(cov[6, 6]))
+        correlation = cov[6, :6] / np.sqrt(np.diag(cov)[:6] * cov[6, 6])
+        cov = cov[:6, :6]
+        if abs(offset) > bound:
+            raise TimeOffsetError(f"the estimated time offset between the joint and camera clocks is "
+                                  f"{offset * 1e3:+.1f} ms (1-sigma {offset_std * 1e3:.1f} ms), beyond the "
+                                  f"+-{bound * 1e3:g} ms the bundle adjustment may estimate")
+    inliers = np.zeros(tracks.n_tracks, dtype=bool)
+    kept_idx = np.flatnonzero(keep)[good]
+    inliers[kept_idx] = True
+    all_points = np.full((tracks.n_tracks, 3), np.nan)
+    all_points[kept_idx] = pts2
+    return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))), sigma_fit,
+                            offset, offset_std, correlation, summaries, sigma)
 
 
 def screen_start(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig, max_nfev: int,
@@ -660,7 +895,10 @@ def screen_start(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig,
     evaluations of the Cauchy pass (``refine``'s first). The score is the mean over every
     observation of min(r^2, cap_px^2) per coordinate, r the residual where the pass ended, and
     cap_px^2 for every observation of a track that could not be triangulated (behind the camera):
-    a start that leaves tracks out is not rewarded for it.
+    a start that leaves tracks out is not rewarded for it. The pass is scipy's TRF whatever
+    ``config.backend`` says: the screening's scale (how far a member gets in ``max_nfev`` evaluations)
+    was measured with it, and the Schur backend's Gauss-Newton steps reach the optimum from much
+    farther within them, which would leave members indistinguishable.
 
     Args:
         tracks: the observations (``build_track_set``).
@@ -677,10 +915,16 @@ def screen_start(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig,
     if ok.sum() < 2:
         return T_init, np.inf
     T, _, _, _, sol = _solve(_subset(tracks, ok), T_init, points[ok], "cauchy", config.cauchy_scale_px,
-                             max_nfev, ftol=config.robust_ftol)
+                             max_nfev, ftol=config.robust_ftol, backend="scipy")
     n_left_out = int(np.sum(~ok[tracks.track]))
     total = float(np.sum(np.minimum(sol.fun**2, cap_px**2))) + 2 * n_left_out * cap_px**2
     return T, total / (2 * tracks.track.size)
+
+
+def _turned_by_offset(tracks: TrackSet, time_offset_s: float) -> TrackSet:
+    """The tracks with each observation's rotation Rot(a_b, delta + v s) at time offset s (module doc)."""
+    rot = Rotation.from_rotvec(tracks.axis[tracks.track] * (tracks.delta + tracks.velocity * time_offset_s)[:, None])
+    return replace(tracks, rot=rot.as_matrix())
 
 
 def _subset(tracks: TrackSet, keep: NDArray[np.bool_]) -> TrackSet:

@@ -40,11 +40,6 @@ from solver.errors import ArcCalibError, InvalidInputError
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
 from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig, FocalCheck, MotionReport
 
-#: The calibrator of online sessions (the env, ``run``): the bundle adjustment gets at most 40 tracks per
-#: motion and 15 frames per track (evenly spaced over the sweep), a fifth of what the tracker delivers at
-#: 1080p, enough for the ellipses, and it keeps tracking + solving within a frame period.
-ONLINE_CALIBRATOR = CalibratorConfig(max_tracks_per_motion=40, max_frames_per_track=15)
-
 
 def motion_refusal_reason(robot: RobotModel, checker: CollisionChecker, min_delta: float, max_delta: float,
                           collision_step_m: float, q: FloatArray, joint: int, delta: float) -> str:
@@ -83,7 +78,7 @@ class SessionConfig:
         min_delta: rad; smallest |Delta| accepted.
         max_delta: rad; largest |Delta| accepted.
         collision_step_m: m; a sweep is checked at steps that move no point by more than this.
-        calibrator: solver settings (``ONLINE_CALIBRATOR`` by default).
+        calibrator: solver settings (every track and frame goes to the bundle adjustment by default).
         tracker: tracking settings.
         transit: how the arm gets from where it is to Q (straight if free, else OMPL RRTConnect).
     """
@@ -91,7 +86,7 @@ class SessionConfig:
     min_delta: float = 0.2
     max_delta: float = 1.5
     collision_step_m: float = 0.005
-    calibrator: CalibratorConfig = ONLINE_CALIBRATOR
+    calibrator: CalibratorConfig = field(default_factory=CalibratorConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     transit: TransitConfig = field(default_factory=TransitConfig)
 

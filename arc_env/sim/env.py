@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from arc_env.robot.session import ONLINE_CALIBRATOR, Acquisition, CalibrationSession, SessionConfig
+from arc_env.robot.session import Acquisition, CalibrationSession, SessionConfig
 from arc_env.robot.tracking import TrackerConfig
 from arc_env.sim.scene import Scene, SceneConfig, SceneRenderer
 from planners.context import observation_from_estimate
@@ -58,8 +58,7 @@ class EnvConfig:
         terminate_on_convergence: end the episode (``terminated``) when the calibration converges;
             off, episodes run to the motion budget (benchmarks measuring every checkpoint).
         refusal_penalty: reward of a refused action.
-        calibrator: solver settings (``arc_env.robot.session.ONLINE_CALIBRATOR``: at most 40 tracks
-            per motion and 15 frames per track).
+        calibrator: solver settings (default: every track and frame goes to the bundle adjustment).
         tracker: tracking settings.
         transit: how the arm gets from where it is to Q (straight if free, else OMPL RRTConnect).
     """
@@ -83,7 +82,7 @@ class EnvConfig:
     step_cost: float = 0.02
     terminate_on_convergence: bool = True
     refusal_penalty: float = 0.1
-    calibrator: CalibratorConfig = ONLINE_CALIBRATOR
+    calibrator: CalibratorConfig = field(default_factory=CalibratorConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     transit: TransitConfig = field(default_factory=TransitConfig)
 

@@ -1,0 +1,183 @@
+"""Levenberg-Marquardt on the bundle adjustment's normal equations with the points eliminated (ours).
+
+Each observation touches the pose block (omega, tau[, s]) and its own track's point only, so the
+normal equations J^T W J have a block-arrow shape: U (n, n) for the pose, one (3, 3) block V_t per
+track and the couplings W_t (n, 3). Each iteration eliminates the points (Schur complement
+S = U - sum_t W_t V_t^-1 W_t^T, n x n), solves for the pose step and back-substitutes every point's
+step, all as vectorized numpy over the observations: what Ceres's DENSE_SCHUR does, with no
+sparse matrix and no iterative linear solver. A robust loss enters as iteratively reweighted least
+squares (Cauchy: w = 1 / (1 + r^2 / c^2) per observation, on its squared pixel error), and a
+quadratic prior on the pose (``PosePrior``: the information earlier motions carry, marginalized) is
+added to U and to the pose gradient.
+
+The problem is any object with ``n_pose``, ``tracks`` (a ``solver.refinement.TrackSet``: its
+``track`` index per observation), ``residuals(x)`` (2P [+1] px), ``jacobian_blocks(x)`` (P, 2,
+n_pose + 3) and ``prior_row()`` ((n_pose,) or None: the time offset's prior residual, last in
+``residuals``), i.e. ``solver.refinement._Problem``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from solver.arrays import FloatArray
+from solver.errors import InvalidInputError
+
+Loss = Literal["linear", "cauchy"]
+
+
+@dataclass(frozen=True)
+class PosePrior:
+    """A quadratic cost on the pose parameters p (the problem's first n_pose): 0.5 p^T H p + g^T p + c.
+
+    Attributes:
+        information: (n, n) float64, H: px^2 per (rad, m[, s])^2, symmetric positive semi-definite.
+        gradient: (n,) float64, g: px^2 per (rad, m[, s]).
+        constant: c, px^2: the cost at p = 0 (e.g. what the earlier motions' residuals cost there), so
+            that the total, and the relative decrease that ends the iteration, mean what they do in a
+            batch adjustment.
+    """
+
+    information: FloatArray
+    gradient: FloatArray
+    constant: float = 0.0
+
+    def cost(self, p: FloatArray) -> float:
+        """The prior's cost at pose parameters p (n,)."""
+        return float(0.5 * p @ self.information @ p + self.gradient @ p + self.constant)
+
+
+@dataclass(frozen=True)
+class SchurSolution:
+    """Where ``solve_schur`` ended.
+
+    Attributes:
+        x: (n_pose + 3T,) the parameters.
+        fun: the problem's residuals at x (2P px, then the time offset's prior residual when it has one).
+        cost: the robust cost there (with the pose prior's), px^2.
+        iterations: Jacobian evaluations.
+        converged: the relative cost decrease fell below ``ftol`` (else the iteration cap or no progress).
+    """
+
+    x: FloatArray
+    fun: FloatArray
+    cost: float
+    iterations: int
+    converged: bool
+
+
+def track_starts(track: np.ndarray) -> np.ndarray:
+    """Index of each track's first observation, for ``np.add.reduceat`` (observations grouped by track)."""
+    if track.size and np.any(np.diff(track) < 0):
+        raise InvalidInputError("observations must be grouped by track, in order (build_track_set's layout)")
+    return np.flatnonzero(np.r_[True, np.diff(track) != 0])
+
+
+def _robust_cost(r2: FloatArray, loss: Loss, c2: float) -> float:
+    return float(0.5 * np.sum(r2 if loss == "linear" else c2 * np.log1p(r2 / c2)))
+
+
+def _weights(r2: FloatArray, loss: Loss, c2: float) -> FloatArray:
+    return np.ones_like(r2) if loss == "linear" else 1.0 / (1.0 + r2 / c2)
+
+
+def normal_blocks(blocks: FloatArray, r: FloatArray, w: FloatArray, starts: np.ndarray
+                  ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The weighted normal equations' blocks, per track, from the observations' Jacobian blocks.
+
+    Args:
+        blocks: (P, 2, n + 3): each observation's derivatives by the pose's n parameters and its point's 3.
+        r: (P, 2) px: the residuals.
+        w: (P,): each observation's weight.
+        starts: (T,) the first observation of each track (observations grouped by track).
+
+    Returns:
+        Per track: its share of the pose block U_t (T, n, n), the coupling W_t (T, n, 3), the point block
+        V_t (T, 3, 3), its share of the pose gradient gp_t (T, n) and the point gradient gx_t (T, 3).
+    """
+    n = blocks.shape[2] - 3
+    JwT = (blocks * w[:, None, None]).transpose(0, 2, 1)  # (P, n + 3, 2); batched matmul: ~5x einsum's speed
+    JtJ = np.add.reduceat(np.matmul(JwT, blocks), starts)  # (T, n + 3, n + 3)
+    g = np.add.reduceat(np.matmul(JwT, r[:, :, None])[:, :, 0], starts)  # (T, n + 3)
+    return JtJ[:, :n, :n], JtJ[:, :n, n:], JtJ[:, n:, n:], g[:, :n], g[:, n:]
+
+
+def solve_schur(problem: Any, x0: FloatArray, loss: Loss = "linear", f_scale: float = 1.0, max_iter: int = 50,
+                ftol: float = 1e-9, prior: PosePrior | None = None) -> SchurSolution:
+    """Minimize the problem's robust cost (plus the pose prior's) from x0 by Levenberg-Marquardt.
+
+    Args:
+        problem: the bundle adjustment (the module doc).
+        x0: (n_pose + 3T,) the start.
+        loss: "linear" (least squares) or "cauchy" (scale ``f_scale`` px, on each observation's squared error).
+        f_scale: px, the Cauchy scale.
+        max_iter: Jacobian evaluations at most.
+        ftol: the relative cost decrease of an accepted step below which the iteration stops.
+        prior: a quadratic cost on the pose parameters, or None.
+
+    Returns:
+        The solution (``SchurSolution``).
+    """
+    n = problem.n_pose
+    starts = track_starts(problem.tracks.track)
+    P = problem.tracks.track.size
+    c2 = float(f_scale) ** 2
+    row = problem.prior_row()
+
+    def evaluate(x: FloatArray) -> tuple[FloatArray, float]:
+        fun = problem.residuals(x)
+        r2 = np.sum(fun[:2 * P].reshape(P, 2) ** 2, axis=1)
+        cost = _robust_cost(r2, loss, c2) + 0.5 * float(np.sum(fun[2 * P:] ** 2))
+        if prior is not None:
+            cost += prior.cost(x[:n])
+        return fun, cost
+
+    x = np.array(x0, dtype=np.float64)
+    fun, cost = evaluate(x)
+    lam = 1e-4
+    converged = False
+    iterations = 0
+    while iterations < max_iter:
+        iterations += 1
+        r = fun[:2 * P].reshape(P, 2)
+        blocks = problem.jacobian_blocks(x)
+        Ut, W, V, gpt, gx = normal_blocks(blocks, r, _weights(np.sum(r**2, axis=1), loss, c2), starts)
+        U, gp = Ut.sum(axis=0), gpt.sum(axis=0)
+        if row is not None:
+            U = U + np.outer(row, row)
+            gp = gp + row * fun[2 * P]
+        if prior is not None:
+            U = U + prior.information
+            gp = gp + prior.information @ x[:n] + prior.gradient
+        dU, dV = np.diag(U).copy(), np.einsum("tii->ti", V).copy()
+        improved = False
+        while lam < 1e12:
+            Vd = V + lam * (dV[:, :, None] * np.eye(3) + 1e-12 * np.eye(3))
+            Vinv = np.linalg.inv(Vd)
+            WVinv = np.matmul(W, Vinv)  # (T, n, 3)
+            S = U + lam * np.diag(dU) - np.einsum("tij,tkj->ik", WVinv, W)
+            rhs = -(gp - np.einsum("tij,tj->i", WVinv, gx))
+            try:
+                dp = np.linalg.solve(S, rhs)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            dx = -np.einsum("tij,tj->ti", Vinv, gx + np.einsum("tji,j->ti", W, dp))
+            step = np.concatenate([dp, dx.ravel()])
+            x_new = x + step
+            fun_new, cost_new = evaluate(x_new)
+            if np.isfinite(cost_new) and cost_new < cost:
+                decrease = (cost - cost_new) / max(cost, 1e-300)
+                x, fun, cost = x_new, fun_new, cost_new
+                lam = max(lam / 10, 1e-12)
+                improved = True
+                converged = decrease < ftol
+                break
+            lam *= 10
+        if not improved or converged:
+            converged = converged or not improved  # no step lowers the cost: a minimum to working precision
+            break
+    return SchurSolution(x, fun, cost, iterations, converged)

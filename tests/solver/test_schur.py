@@ -1,0 +1,216 @@
+"""Tests of solver/schur.py and the incremental bundle adjustment (solver/refinement.py, solver/pipeline.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from solver import PANDA, Calibrator, SyntheticConfig, SyntheticScene, d415_intrinsics, sample_camera_pose
+from solver.frames import perturb, pose_difference, pose_errors
+from solver.pipeline import CalibratorConfig
+from solver.refinement import (
+    RefinementConfig,
+    _Problem,
+    build_track_set,
+    refine,
+    refine_increment,
+    summaries_covariance,
+)
+from solver.schur import PosePrior, normal_blocks, solve_schur, track_starts
+from tests.solver.scene import FOCAL
+from tests.solver.test_refinement import (
+    NOISE_FREE_POSE_TOL,
+    NOISY_SCENE,
+    _camera_points,
+    _make_scene,
+    _start_pose,
+    _timed_scene,
+)
+
+#: The incremental estimate must equal the batch one within this fraction of its 1-sigma (issue 18) ...
+AGREEMENT_SIGMA = 0.1
+#: ... and its 1-sigma the batch one's within this fraction.
+STD_RTOL = 0.05
+
+
+def _std(cov: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.diag(cov))
+
+
+def test_normal_blocks_are_the_dense_weighted_normal_equations():
+    scene = _make_scene(31, n_motions=3, n_tracks=3, n_frames=9, noise_px=0.5)
+    tracks = build_track_set(scene.motions, FOCAL)
+    problem = _Problem(tracks, _start_pose(scene.T_true, 32))
+    x = np.concatenate([np.zeros(6), _camera_points(scene).ravel()])
+    rng = np.random.default_rng(33)
+    w = rng.uniform(0.2, 2.0, tracks.uv.shape[0])
+    J = problem.jacobian(x).toarray()  # the sparse assembly: an independent path to J
+    r = problem.residuals(x)
+    Wd = np.repeat(w, 2)
+    H, g = J.T @ (Wd[:, None] * J), J.T @ (Wd * r)
+    U, W, V, gp, gx = normal_blocks(problem.jacobian_blocks(x), r.reshape(-1, 2), w, track_starts(tracks.track))
+    np.testing.assert_allclose(U.sum(axis=0), H[:6, :6], rtol=1e-10)
+    np.testing.assert_allclose(gp.sum(axis=0), g[:6], rtol=1e-10, atol=1e-9 * np.abs(g).max())
+    for t in range(tracks.n_tracks):
+        cols = slice(6 + 3 * t, 9 + 3 * t)
+        np.testing.assert_allclose(W[t], H[:6, cols], rtol=1e-10, atol=1e-9 * np.abs(H).max())
+        np.testing.assert_allclose(V[t], H[cols, cols], rtol=1e-10)
+        np.testing.assert_allclose(gx[t], g[cols], rtol=1e-10, atol=1e-9 * np.abs(g).max())
+
+
+def test_track_starts_refuses_observations_out_of_track_order():
+    np.testing.assert_array_equal(track_starts(np.array([0, 0, 1, 2, 2])), [0, 2, 3])
+    with pytest.raises(ValueError, match="grouped by track"):
+        track_starts(np.array([0, 1, 0]))
+
+
+def test_schur_backend_finds_the_truth_noise_free():
+    scene = _make_scene(7)
+    result = refine(build_track_set(scene.motions, FOCAL), _start_pose(scene.T_true, 8),
+                    RefinementConfig(backend="schur"))
+    assert max(pose_errors(result.T_camera_base, scene.T_true)) < NOISE_FREE_POSE_TOL
+
+
+@pytest.mark.parametrize("seed", [9, 11])
+def test_schur_and_scipy_backends_reach_the_same_optimum(seed):
+    scene = _make_scene(seed, **NOISY_SCENE)
+    tracks, start = build_track_set(scene.motions, FOCAL), _start_pose(scene.T_true, seed + 1)
+    schur = refine(tracks, start, RefinementConfig(backend="schur"))
+    scipy = refine(tracks, start, RefinementConfig(backend="scipy"))
+    np.testing.assert_array_equal(schur.track_inliers, scipy.track_inliers)
+    xi = pose_difference(scipy.T_camera_base, schur.T_camera_base)
+    assert np.all(np.abs(xi) < 0.01 * _std(scipy.covariance))
+    np.testing.assert_allclose(_std(schur.covariance), _std(scipy.covariance), rtol=1e-3)
+
+
+def test_a_pose_prior_holds_the_pose_where_it_says():
+    scene = _make_scene(13, **NOISY_SCENE)
+    tracks = build_track_set(scene.motions, FOCAL)
+    T0 = scene.T_true
+    problem = _Problem(tracks, T0)
+    target = np.array([0.01, -0.02, 0.015, 0.03, -0.01, 0.02])  # far from the tracks' optimum
+    H = 1e12 * np.eye(6)
+    x0 = np.concatenate([np.zeros(6), _camera_points(scene).ravel()])
+    sol = solve_schur(problem, x0, prior=PosePrior(H, -H @ target))  # 0.5 p^T H p - p^T H target
+    np.testing.assert_allclose(sol.x[:6], target, atol=1e-6)
+    free = solve_schur(problem, x0)
+    assert np.linalg.norm(free.x[:6] - target) > 0.9 * np.linalg.norm(target)  # without it, near the tracks' optimum
+
+
+def _split(motions: list, n_old: int) -> tuple:
+    old, new = motions[:n_old], motions[n_old:]
+    return build_track_set(old, FOCAL), build_track_set(new, FOCAL), build_track_set(motions, FOCAL)
+
+
+@pytest.mark.parametrize("seed", [15, 17])
+def test_an_increment_equals_the_batch_adjustment(seed):
+    scene = _make_scene(seed, n_motions=7, n_tracks=6, n_frames=30, noise_px=0.5)
+    old, new, every = _split(scene.motions, 6)
+    start = _start_pose(scene.T_true, seed + 1)
+    first = refine(old, start)
+    batch = refine(every, first.T_camera_base)
+    inc = refine_increment(new, first.T_camera_base, first.summaries, first.robust_sigma_px)
+    xi = pose_difference(batch.T_camera_base, inc.T_camera_base)
+    assert np.all(np.abs(xi) < AGREEMENT_SIGMA * _std(batch.covariance))
+    np.testing.assert_allclose(_std(inc.covariance), _std(batch.covariance), rtol=STD_RTOL)
+    assert len(inc.summaries) == 7 and inc.track_inliers.shape == (new.n_tracks,)
+    # the summaries of the batch adjustment give its own covariance
+    np.testing.assert_allclose(summaries_covariance(batch.summaries)[0], batch.covariance, rtol=1e-9)
+    # the new motion's information changed the estimate: it is not the old one carried over
+    assert np.any(np.abs(pose_difference(first.T_camera_base, batch.T_camera_base)) > AGREEMENT_SIGMA
+                  * _std(batch.covariance))
+
+
+def test_an_increment_with_the_time_offset_equals_the_batch_adjustment():
+    scene = _timed_scene(21, 0.020, n_motions=7)
+    old, new, every = _split(scene.motions, 6)
+    first = refine(old, _start_pose(scene.T_true, 22))
+    batch = refine(every, first.T_camera_base)
+    inc = refine_increment(new, first.T_camera_base, first.summaries, first.robust_sigma_px,
+                           time_offset_s=first.time_offset_s)
+    xi = pose_difference(batch.T_camera_base, inc.T_camera_base)
+    assert np.all(np.abs(xi) < AGREEMENT_SIGMA * _std(batch.covariance))
+    assert abs(inc.time_offset_s - batch.time_offset_s) < AGREEMENT_SIGMA * batch.time_offset_std_s
+    assert inc.time_offset_std_s == pytest.approx(batch.time_offset_std_s, rel=STD_RTOL)
+    with pytest.raises(ValueError, match="time offset"):
+        refine_increment(new, first.T_camera_base, first.summaries, first.robust_sigma_px)
+
+
+def test_an_increment_drops_a_jumping_track_of_the_new_motion():
+    scene = _make_scene(23, n_motions=7, n_tracks=6, n_frames=30, noise_px=0.5)
+    axis, pivot, tracks = scene.motions[6]
+    uv, delta = tracks[2]
+    jumped = uv.copy()
+    jumped[15:] += np.array([25.0, -15.0]) / FOCAL
+    scene.motions[6] = (axis, pivot, [*tracks[:2], (jumped, delta), *tracks[3:]])
+    old, new, _ = _split(scene.motions, 6)
+    first = refine(old, _start_pose(scene.T_true, 24))
+    inc = refine_increment(new, first.T_camera_base, first.summaries, first.robust_sigma_px)
+    np.testing.assert_array_equal(inc.track_inliers, [True, True, False, True, True, True])
+
+
+def _episode(incremental: bool, n: int = 10) -> Calibrator:
+    T_true = sample_camera_pose(np.random.default_rng(1003))
+    rng = np.random.default_rng(7)
+    intrinsics = d415_intrinsics()
+    scene = SyntheticScene(PANDA, intrinsics, T_true, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1), rng)
+    calibrator = Calibrator(intrinsics, PANDA.axis_and_point, CalibratorConfig(incremental=incremental))
+    for _ in range(n):
+        calibrator.add_motion(scene.random_motion(rng).observation)
+    calibrator.T_true = T_true
+    return calibrator
+
+
+def test_the_calibrator_updates_incrementally_and_agrees_with_solving_every_motion():
+    inc, batch = _episode(True), _episode(False)
+    assert inc.state.stage == batch.state.stage == "refined"
+    assert inc.relinearized < batch.relinearized  # some updates were increments
+    xi = pose_difference(batch.state.T_camera_base, inc.state.T_camera_base)
+    assert np.all(np.abs(xi) < AGREEMENT_SIGMA * batch.state.std)
+    np.testing.assert_allclose(inc.state.std, batch.state.std, rtol=STD_RTOL)
+    reference = inc.batch_refinement()
+    assert np.all(np.abs(pose_difference(reference.T_camera_base, inc.state.T_camera_base))
+                  < AGREEMENT_SIGMA * _std(reference.covariance))
+    assert [r.n_inlier_tracks for r in inc.reports] == pytest.approx([r.n_inlier_tracks for r in batch.reports],
+                                                                     abs=2)
+
+
+def test_track_weights_trust_the_quiet_tracks_more():
+    """Half the tracks 6x noisier than the others: weighting by each track's noise shrinks the covariance."""
+    scene = _make_scene(25, n_motions=6, n_tracks=8, n_frames=30, noise_px=0.0)
+    rng = np.random.default_rng(26)
+    noisy = []
+    for axis, pivot, tracks in scene.motions:
+        noisy.append((axis, pivot, [(uv + rng.normal(0, 0.3 if k % 2 else 1.8, uv.shape) / FOCAL, d)
+                                    for k, (uv, d) in enumerate(tracks)]))
+    tracks = build_track_set(noisy, FOCAL)
+    start = _start_pose(scene.T_true, 27)
+    config = RefinementConfig(outlier_px=5.0, outlier_sigmas=10.0)  # keep the noisy tracks: they are not outliers
+    plain = refine(tracks, start, config)
+    weighted = refine(tracks, start, RefinementConfig(outlier_px=5.0, outlier_sigmas=10.0, track_weights=True))
+    assert weighted.track_inliers.all() and plain.track_inliers.all()
+    # the weighted covariance is smaller in every direction (its information is larger) ...
+    assert np.all(np.linalg.eigvalsh(plain.covariance - weighted.covariance) > 0)
+    assert np.prod(_std(weighted.covariance)) < 0.5 * np.prod(_std(plain.covariance))
+    # ... and still holds the truth (chi-square with 6 dof, 99.9 %)
+    xi = pose_difference(weighted.T_camera_base, scene.T_true)
+    assert xi @ np.linalg.solve(weighted.covariance, xi) < 22.46
+    assert weighted.rms_px == pytest.approx(plain.rms_px, rel=0.1)  # reported in px, unweighted
+
+
+def test_track_weights_change_little_when_every_track_is_alike():
+    scene = _make_scene(29, **NOISY_SCENE)
+    tracks, start = build_track_set(scene.motions, FOCAL), _start_pose(scene.T_true, 30)
+    plain = refine(tracks, start)
+    weighted = refine(tracks, start, RefinementConfig(track_weights=True))
+    xi = pose_difference(plain.T_camera_base, weighted.T_camera_base)
+    assert np.all(np.abs(xi) < 0.5 * _std(plain.covariance))
+    np.testing.assert_allclose(_std(weighted.covariance), _std(plain.covariance), rtol=0.2)
+
+
+def test_an_increment_needs_the_earlier_summaries():
+    scene = _make_scene(7)
+    old, new, _ = _split(scene.motions, 3)
+    first = refine(old, perturb(scene.T_true, np.zeros(6)))
+    with pytest.raises(ValueError, match="summaries"):
+        refine_increment(new, first.T_camera_base, (), 0.5)
