@@ -61,8 +61,8 @@ def _pycolmap() -> Any:
     try:
         import pycolmap
     except ImportError as exc:
-        raise InvalidInputError("the Ceres backend needs pycolmap: pip install pycolmap "
-                                "(or the package's 'ceres' extra)") from exc
+        raise ImportError("the Ceres backend needs pycolmap: pip install pycolmap "
+                          "(or the package's 'ceres' extra)") from exc
     return pycolmap
 
 
@@ -230,7 +230,8 @@ def refine_ceres(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig 
 
     Raises:
         InsufficientMotionsError: fewer than two tracks survive triangulation or outlier removal.
-        InvalidInputError: the time offset is requested, T_init is not finite, or pycolmap is missing.
+        InvalidInputError: the time offset is requested, or T_init is not a finite (4, 4) array.
+        ImportError: pycolmap is not installed.
     """
     config = config or RefinementConfig()
     options = options or CeresOptions()
