@@ -1,4 +1,6 @@
-"""Benchmark the bundle adjustment's backends on one batch refine: scipy (``refine``) against Ceres (``refine_ceres``).
+"""Benchmark the bundle adjustment's backends on one batch refine: scipy's TRF, ours (Schur LM), Ceres.
+
+``refine`` with ``RefinementConfig.backend`` "scipy" and "schur" (``solver.schur``), and ``refine_ceres``.
 
 Synthetic Franka Panda episodes built as in scripts/bench_solver.py (camera pose i from seed 1000 + i,
 episode rng 100 i + seed, d415 intrinsics, 0.5 px noise, random exploratory motions), with up to
@@ -47,13 +49,17 @@ from solver import (  # noqa: E402
     sample_camera_pose,
 )
 from solver.camera import normalized_from_pixels  # noqa: E402
-from solver.refinement import TrackSet, build_track_set, refine  # noqa: E402
+from solver.refinement import RefinementConfig, TrackSet, build_track_set, refine  # noqa: E402
 from solver.refinement_ceres import refine_ceres  # noqa: E402
 
 CHECKPOINTS = (5, 10, 25)
 CAP_TRACKS = 60  # CalibratorConfig.max_tracks_per_motion
 LOADS = ("capped", "all")
-BACKENDS: dict[str, Callable[..., RefinementResult]] = {"scipy": refine, "ceres": refine_ceres}
+BACKENDS: dict[str, Callable[..., RefinementResult]] = {
+    "scipy": lambda tracks, start: refine(tracks, start, RefinementConfig(backend="scipy")),
+    "schur": lambda tracks, start: refine(tracks, start, RefinementConfig(backend="schur")),
+    "ceres": refine_ceres,
+}
 CHI2_95 = float(chi2.ppf(0.95, 6))
 
 
@@ -152,7 +158,8 @@ def main() -> None:
     parser.add_argument("--motions", type=int, default=25, help="motions per episode (default 25)")
     parser.add_argument("--tracks", type=int, default=200, help="tracks per motion at most (default 200)")
     parser.add_argument("--outliers", type=str, default="0.1,0.3", help="outlier-track fractions (default 0.1,0.3)")
-    parser.add_argument("--backends", type=str, default="scipy,ceres", help="of scipy, ceres (default both)")
+    parser.add_argument("--backends", type=str, default="scipy,schur,ceres",
+                        help="of scipy, schur (solver.schur, the default), ceres (default all three)")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
     args = parser.parse_args()
     backends = tuple(b.strip() for b in args.backends.split(","))
