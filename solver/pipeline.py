@@ -147,7 +147,7 @@ class CalibratorConfig:
     family_samples: int = 12
     incremental: bool = True
     relinearize_sigma: float = 2.0
-    relinearize_every: int = 10
+    relinearize_every: int = 20
 
     def __post_init__(self) -> None:
         lo, hi = self.family_distances

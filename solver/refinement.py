@@ -75,7 +75,13 @@ class RefinementConfig:
         track_weights: weight each kept track in the final pass by its own noise, estimated from its
             residuals after the robust pass, shrunk towards the common sigma with ``weight_prior_dof``
             degrees of freedom: sigma_t^2 = (nu sigma^2 + RSS_t) / (nu + 2 M_t - 3). Many mediocre tracks
-            then cannot outvote good ones.
+            then cannot outvote good ones. Measured on cached tracks of five rendered 12-motion 1080p Panda
+            recordings (all tracks, without / with): realistic real0 7.40e-4 rad / 1.15 mm against 7.15e-4 /
+            0.50 mm, real2 1.06e-2 / 13.5 against 1.09e-2 / 8.05, real3 1.72e-3 / 1.50 against 2.00e-3 /
+            1.50, as-shipped ship1 1.33e-3 / 3.90 against 1.31e-3 / 3.71, clean painted paint0 2.20e-4 /
+            0.19 against 4.91e-5 / 0.05 mm; synthetic (scripts/bench_solver.py, 3 poses x 2 seeds, equal
+            noise on every track) 2.59e-4 / 0.31 mm against 2.37e-4 / 0.36 mm at 25 motions, coverage of
+            the 95 % region 0.958 against 1.000.
         weight_prior_dof: see ``track_weights``.
     """
 
@@ -88,7 +94,7 @@ class RefinementConfig:
     estimate_time_offset: bool | None = None
     time_offset_bound_s: float = 0.1
     backend: Backend = "schur"
-    track_weights: bool = False
+    track_weights: bool = True
     weight_prior_dof: float = 10.0
 
     def __post_init__(self) -> None:
@@ -585,7 +591,8 @@ def _motion_summaries(problem: _Problem, x: FloatArray, residuals: FloatArray) -
     n = problem.n_pose
     tracks = problem.tracks
     r = residuals.reshape(-1, 2)
-    U, W, V, gp, gx = normal_blocks(problem.jacobian_blocks(x), r, np.ones(r.shape[0]), track_starts(tracks.track))
+    U, W, V, gp, gx = normal_blocks(problem.jacobian_blocks(x), r, np.ones(r.shape[0]), track_starts(tracks.track),
+                                    per_track_pose=True)
     WVinv = np.matmul(W, np.linalg.inv(V + 1e-12 * np.eye(3)))
     g = gp - np.matmul(WVinv, gx[:, :, None])[:, :, 0]  # (T, n): each track's score, its point marginalized
     info = U - np.matmul(WVinv, W.transpose(0, 2, 1))  # (T, n, n)

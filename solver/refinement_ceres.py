@@ -26,7 +26,7 @@ Needs ``pycolmap`` (COLMAP's bindings, which carry their own Ceres); not a requi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -223,7 +223,7 @@ def refine_ceres(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig 
         tracks: the observations (``build_track_set``).
         T_init: (4, 4) float64: starting pose, e.g. the linear calibration.
         config: settings; defaults to ``RefinementConfig()``. ``estimate_time_offset`` must not be
-            True (None is taken as off here, whatever the tracks carry).
+            True (None is taken as off here, whatever the tracks carry); ``track_weights`` is ignored (unweighted).
         points_init: (T, 3) float64, m: starting points; triangulated from ``T_init`` if None (rows
             with NaN too).
         options: Ceres settings; defaults to ``CeresOptions()``.
@@ -238,6 +238,8 @@ def refine_ceres(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig 
     T_init = np.asarray(T_init, dtype=np.float64)
     if T_init.shape != (4, 4) or not np.all(np.isfinite(T_init)):
         raise InvalidInputError(f"T_init must be a finite (4, 4) transform, got shape {T_init.shape}")
+    if config.track_weights:  # the Ceres trial solves the unweighted problem only
+        config = replace(config, track_weights=False)
     if config.estimate_time_offset:
         raise InvalidInputError("the Ceres backend does not estimate the time offset: set "
                                 "RefinementConfig.estimate_time_offset to False or None, or use refine()")

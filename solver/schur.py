@@ -84,25 +84,34 @@ def _weights(r2: FloatArray, loss: Loss, c2: float) -> FloatArray:
     return np.ones_like(r2) if loss == "linear" else 1.0 / (1.0 + r2 / c2)
 
 
-def normal_blocks(blocks: FloatArray, r: FloatArray, w: FloatArray, starts: np.ndarray
+def normal_blocks(blocks: FloatArray, r: FloatArray, w: FloatArray, starts: np.ndarray, per_track_pose: bool = False
                   ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """The weighted normal equations' blocks, per track, from the observations' Jacobian blocks.
+    """The weighted normal equations' blocks from the observations' Jacobian blocks.
 
     Args:
         blocks: (P, 2, n + 3): each observation's derivatives by the pose's n parameters and its point's 3.
         r: (P, 2) px: the residuals.
         w: (P,): each observation's weight.
         starts: (T,) the first observation of each track (observations grouped by track).
+        per_track_pose: give the pose block and gradient per track (each track's share) instead of summed.
 
     Returns:
-        Per track: its share of the pose block U_t (T, n, n), the coupling W_t (T, n, 3), the point block
-        V_t (T, 3, 3), its share of the pose gradient gp_t (T, n) and the point gradient gx_t (T, 3).
+        The pose block U (n, n) (per track (T, n, n)), the couplings W_t (T, n, 3), the point blocks
+        V_t (T, 3, 3), the pose gradient gp (n,) (per track (T, n)) and the points' gx_t (T, 3).
     """
-    n = blocks.shape[2] - 3
-    JwT = (blocks * w[:, None, None]).transpose(0, 2, 1)  # (P, n + 3, 2); batched matmul: ~5x einsum's speed
-    JtJ = np.add.reduceat(np.matmul(JwT, blocks), starts)  # (T, n + 3, n + 3)
-    g = np.add.reduceat(np.matmul(JwT, r[:, :, None])[:, :, 0], starts)  # (T, n + 3)
-    return JtJ[:, :n, :n], JtJ[:, :n, n:], JtJ[:, n:, n:], g[:, :n], g[:, n:]
+    P, n = blocks.shape[0], blocks.shape[2] - 3
+    Jw = blocks * w[:, None, None]
+    JwT = Jw.transpose(0, 2, 1)  # (P, n + 3, 2); batched matmul is ~5x faster than einsum here
+    Jx = blocks[:, :, n:]
+    W = np.add.reduceat(np.matmul(JwT[:, :n], Jx), starts)
+    V = np.add.reduceat(np.matmul(JwT[:, n:], Jx), starts)
+    g = np.matmul(JwT, r[:, :, None])[:, :, 0]  # (P, n + 3)
+    gx = np.add.reduceat(g[:, n:], starts)
+    if per_track_pose:
+        U = np.add.reduceat(np.matmul(JwT[:, :n], blocks[:, :, :n]), starts)
+        return U, W, V, np.add.reduceat(g[:, :n], starts), gx
+    U = Jw[:, :, :n].reshape(2 * P, n).T @ blocks[:, :, :n].reshape(2 * P, n)  # one BLAS product
+    return U, W, V, g[:, :n].sum(axis=0), gx
 
 
 def solve_schur(problem: Any, x0: FloatArray, loss: Loss = "linear", f_scale: float = 1.0, max_iter: int = 50,
@@ -144,8 +153,7 @@ def solve_schur(problem: Any, x0: FloatArray, loss: Loss = "linear", f_scale: fl
         iterations += 1
         r = fun[:2 * P].reshape(P, 2)
         blocks = problem.jacobian_blocks(x)
-        Ut, W, V, gpt, gx = normal_blocks(blocks, r, _weights(np.sum(r**2, axis=1), loss, c2), starts)
-        U, gp = Ut.sum(axis=0), gpt.sum(axis=0)
+        U, W, V, gp, gx = normal_blocks(blocks, r, _weights(np.sum(r**2, axis=1), loss, c2), starts)
         if row is not None:
             U = U + np.outer(row, row)
             gp = gp + row * fun[2 * P]
