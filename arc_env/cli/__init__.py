@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from arc_env.cli.viewer import add_rerun_arguments
 from solver.errors import ArcCalibError, InvalidInputError
 
 #: The realism presets and robot appearances of the simulator (``arc_env.sim.imaging``; kept here so that
@@ -39,6 +38,8 @@ def _add_look_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``arc-calib`` console script."""
+    from arc_env.cli.viewer import add_rerun_arguments
+
     parser = argparse.ArgumentParser(prog="arc-calib", description="Markerless camera-to-robot calibration.")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="run one calibration episode")
