@@ -79,8 +79,8 @@ class ReportCollector:
         T_camera_base_true: (4, 4) float64, metres: the true pose (simulation), or None.
 
     Attributes:
-        motions: per motion taken: its name, joint axis and point (base frame, at Q) and tracks.
-        history: per motion taken: (name, 1-sigma (6,) rad and m or None, true error (rad, m) or None).
+        motions: per motion the calibrator took: its name, joint axis and point (base frame, at Q) and tracks.
+        history: per motion seen: (name, 1-sigma (6,) rad and m or None, true error (rad, m) or None).
     """
 
     T_camera_base_true: FloatArray | None = None
@@ -94,9 +94,10 @@ class ReportCollector:
             self.motions.clear()
             self.history.clear()
         self._last_index = seen.index
-        axis, point = seen.calibrator.kinematics(seen.q_start, seen.joint)
         name = seen.name or f"{seen.index:03d}"
-        self.motions.append(_MotionTracks(name, np.asarray(axis, float), np.asarray(point, float), seen.tracks))
+        if seen.outcome.report is not None:  # the calibrator took it (the robot model accepted the motion)
+            axis, point = seen.calibrator.kinematics(seen.q_start, seen.joint)
+            self.motions.append(_MotionTracks(name, np.asarray(axis, float), np.asarray(point, float), seen.tracks))
         s = seen.calibrator.state
         error = (pose_errors(s.T_camera_base, self.T_camera_base_true)
                  if s.T_camera_base is not None and self.T_camera_base_true is not None else None)

@@ -46,7 +46,7 @@ from arc_env.robot.session import SeenMotion
 from solver.arrays import FloatArray, evenly_spaced
 from solver.camera import normalized_from_pixels, pixels_from_camera_points
 from solver.conics import fit_ellipse_direct
-from solver.errors import InvalidInputError
+from solver.errors import ArcCalibError, InvalidInputError
 from solver.frames import pose_errors, quaternion_xyzw_from_matrix, skew
 from solver.observations import CameraIntrinsics, KeypointTrack
 from solver.pipeline import CalibrationState, Calibrator
@@ -378,7 +378,10 @@ class RerunLog:
                  if report is not None else "")
         self.rec.log("image/axis", rr.LineStrips2D([line] if line is not None else [], colors=[_rgba((255, 0, 255))],
                                                    radii=2.0, labels=[label] if line is not None else None))
-        axis, point = self.robot.axis_and_point(np.asarray(seen.q_start, dtype=np.float64), seen.joint)
+        try:
+            axis, point = self.robot.axis_and_point(np.asarray(seen.q_start, dtype=np.float64), seen.joint)
+        except ArcCalibError:  # the model rejected the motion (its outcome says why): no axis to draw
+            return
         self.rec.log("world/robot/motion_axis", rr.Arrows3D(origins=[point - 0.3 * axis], vectors=[0.6 * axis],
                                                             colors=[_rgba((230, 60, 60))], radii=0.006))
         T = seen.calibrator.state.T_camera_base

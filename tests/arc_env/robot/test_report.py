@@ -136,3 +136,24 @@ def test_report_renders_in_headless_chromium(rng, tmp_path):
     # and the histogram's bars (#4a78c2): the CSS and the inline SVG were applied
     for bgr, at_least in (((0xd9, 0xdc, 0xf8), 5000), ((0xc2, 0x78, 0x4a), 500)):
         assert np.sum(np.all(np.abs(image.astype(int) - bgr) <= 2, axis=2)) >= at_least, bgr
+
+
+def test_collector_keeps_only_motions_the_calibrator_took_and_restarts_on_a_new_pass(rng):
+    from arc_env.robot.session import MotionOutcome, SeenMotion
+    from solver.errors import InvalidInputError
+
+    def kinematics(q, joint):
+        if joint == 6:
+            raise InvalidInputError("the model rejects joint 6")
+        return np.array([0.0, 0.0, 1.0]), np.zeros(3)
+
+    calibrator = Calibrator(d415_intrinsics(640, 360), kinematics)
+    track = KeypointTrack(np.zeros((5, 2)), np.linspace(0.0, 0.5, 5))
+    taken = MotionOutcome(1, 1, True, "", report=object())
+    refused = MotionOutcome(6, 1, False, "the robot model rejects this motion")
+    collector = ReportCollector()
+    for index, joint, outcome in ((0, 1, taken), (1, 6, refused), (2, 1, taken)):
+        collector(SeenMotion(index, np.zeros(7), joint, track.delta, None, [track], outcome, calibrator))
+    assert [m.name for m in collector.motions] == ["000", "002"] and len(collector.history) == 3
+    collector(SeenMotion(0, np.zeros(7), 1, track.delta, None, [track], taken, calibrator, "000"))  # pass 2
+    assert [m.name for m in collector.motions] == ["000"] and len(collector.history) == 1
