@@ -38,6 +38,8 @@ def _add_look_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``arc-calib`` console script."""
+    from arc_env.cli.viewer import add_rerun_arguments
+
     parser = argparse.ArgumentParser(prog="arc-calib", description="Markerless camera-to-robot calibration.")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="run one calibration episode")
@@ -62,6 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     demo.add_argument("--planner", choices=("random", "informed"), default="random",
                       help="motion selection: random (the paper) or informed (ours; default random)")
     _add_look_arguments(demo)
+    add_rerun_arguments(demo)
     record = sub.add_parser("record", help="simulate an episode and write it as a recording (docs/recording-format.md)")
     record.add_argument("--out", required=True, metavar="DIR",
                         help="the recording directory to create; the ground truth goes to DIR.ground_truth.json")
@@ -113,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--resume", metavar="DIR",
                      help="continue from the motions of an earlier run's recording (it is read, never written)")
     add_result_arguments(run)
+    add_rerun_arguments(run)
     export = sub.add_parser("export", help="rewrite the ROS exports of a result.json without recalibrating")
     from arc_env.cli.export import add_arguments as add_export_arguments
 
@@ -125,6 +129,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command == "demo" and args.synthetic and args.planner != "random":
         print("arc-calib: --planner informed needs the MuJoCo scene (drop --synthetic)", file=sys.stderr)
+        return 2
+    if args.command == "demo" and args.synthetic and (args.rerun or args.rerun_save):
+        print("arc-calib: --rerun and --rerun-save need the MuJoCo scene (drop --synthetic)", file=sys.stderr)
         return 2
     try:
         if args.command == "demo":

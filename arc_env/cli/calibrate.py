@@ -22,16 +22,19 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from arc_env.cli.progress import Progress
 from arc_env.cli.result import add_result_arguments, check_frame_names, check_outputs, finish
+from arc_env.cli.viewer import add_rerun_arguments, check_rerun_save, open_rerun_log
 from arc_env.robot.bag import BagRecording, is_bag, read_bag
 from arc_env.robot.exports import calib_name_from, check_frame_name, easy_handeye2_install_path, ros_base_frame
 from arc_env.robot.overlay import RobotProjector, draw_overlay
 from arc_env.robot.recording import Recording, read_recording
+from arc_env.robot.report import ReportCollector, fan_out, report_html
 from arc_env.robot.segmentation import SegmentConfig
 from arc_env.robot.session import CalibrationRun, UsableCriteria, calibrate_reading_offset
 from solver.arrays import evenly_spaced
@@ -133,7 +136,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     source = Path(args.recording).resolve()
     calib_name = args.calib_name or calib_name_from(source.stem if source.is_file() else source.name)
     check_outputs(Path(args.output), inputs, args.force, Path(args.overlay) if args.overlay else None,
-                  installed_calib=easy_handeye2_install_path(calib_name) if args.install_calib else None)
+                  installed_calib=easy_handeye2_install_path(calib_name) if args.install_calib else None, report=True)
+    check_rerun_save(args, inputs, args.force)
     truth = _read_ground_truth(Path(args.ground_truth)) if args.ground_truth else None
     started = time.perf_counter()
     recording = _read_input(args)
@@ -157,10 +161,26 @@ def run_calibrate(args: argparse.Namespace) -> int:
         print(f"time offset: reading the joints again at {offset * 1e3:+.2f} ms", file=sys.stderr)
         return _read_input(argparse.Namespace(**{**vars(args), "time_offset": offset}), quiet=True)
 
-    with Progress(max(len(recording.motions), 1), "motions", enabled=not args.quiet) as bar:
-        run = calibrate_reading_offset(read, args.time_offset, on_motion=bar.step)
+    log = open_rerun_log(args, recording.robot, recording.intrinsics, f"calibrate {recording.path.name}", truth)
+    collected = ReportCollector(truth)
+    try:
+        with Progress(max(len(recording.motions), 1), "motions", enabled=not args.quiet) as bar:
+            run = calibrate_reading_offset(read, args.time_offset, on_motion=bar.step,
+                                           observer=fan_out(collected, log))
+    except BaseException:
+        if log is not None:
+            log.abort()
+        raise
+    if log is not None:
+        log.finish(run.calibrator)
+        log.close()
+        print(f"rerun log: {args.rerun_save}" if args.rerun_save else "rerun log: sent to the viewer", file=sys.stderr)
     overlays = (lambda: render_overlays(run, Path(args.overlay))) if args.overlay else None
-    return finish(run, args, base_frame, overlays, truth, started, calib_name)
+
+    def report(result: dict[str, Any], images: dict[Path, bytes]) -> str:
+        return report_html(run, result, collected, recording.intrinsics, images, truth)
+
+    return finish(run, args, base_frame, overlays, truth, started, calib_name, report)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -187,3 +207,4 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           f"{SegmentConfig.min_delta_rad})")
     parser.add_argument("--ground-truth", metavar="FILE",
                         help="a <recording>.ground_truth.json (simulated recordings): also print the true error")
+    add_rerun_arguments(parser)

@@ -9,11 +9,13 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from arc_env.cli.progress import Progress
+from arc_env.cli.viewer import check_rerun_save, open_rerun_log
 from arc_env.robot.exports import write_files_atomic
 from arc_env.robot.library import robot_from_arguments
 from arc_env.robot.overlay import draw_overlay, mask_iou
@@ -39,6 +41,7 @@ from solver.frames import quaternion_xyzw_from_matrix
 
 def run_demo(args: argparse.Namespace) -> int:
     """Run the episode described by the parsed ``arc-calib demo`` arguments; returns the exit code."""
+    check_rerun_save(args, force=True)  # like --overlay, demo replaces its outputs
     robot = robot_from_arguments(args.robot, args.base_body)
     scene = SceneConfig(robot=robot, width=args.width, height=args.height,
                         **realism_settings(args.realism, args.appearance))
@@ -53,6 +56,25 @@ def run_demo(args: argparse.Namespace) -> int:
 
 def _episode(env: ArcCalibEnv, args: argparse.Namespace) -> int:
     obs, info = env.reset(seed=args.seed)
+    log = open_rerun_log(args, env.scene.robot, env.intrinsics, f"demo seed {args.seed}", env.T_camera_base_true)
+    env.session.observer = log
+    try:
+        code = _motions(env, args, obs, info)
+    except BaseException:
+        if log is not None:
+            log.abort()
+        raise
+    if log is not None:
+        assert env.session.calibrator is not None
+        log.finish(env.session.calibrator)
+        log.close()
+        if args.rerun_save:
+            print(f"rerun log: {args.rerun_save} ({Path(args.rerun_save).stat().st_size / 1e6:.1f} MB; "
+                  f"open it with: rerun {args.rerun_save})")
+    return code
+
+
+def _motions(env: ArcCalibEnv, args: argparse.Namespace, obs: dict[str, Any], info: dict[str, Any]) -> int:
     planner = (InformedPlanner if args.planner == "informed" else RandomPlanner)(env.session,
                                                                                   np.random.default_rng(args.seed))
     look = env.config.scene

@@ -9,6 +9,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -24,6 +25,7 @@ from arc_env.robot.exports import (
     result_dict,
     write_files_atomic,
 )
+from arc_env.robot.report import report_path
 from arc_env.robot.session import CalibrationRun, UsableCriteria, unusable_reason
 from solver.arrays import FloatArray
 from solver.errors import InvalidInputError
@@ -97,14 +99,16 @@ def print_exports(exports: Exports) -> None:
 
 def finish(run: CalibrationRun, args: argparse.Namespace, base_frame: str,
            overlays: Callable[[], dict[Path, bytes]] | None, truth: np.ndarray | None, started: float,
-           calib_name: str) -> int:
+           calib_name: str, report: Callable[[dict[str, Any], dict[Path, bytes]], str] | None = None) -> int:
     """Print the per-motion table; if the result is usable, write it with its exports and print it.
 
     An estimate that is not usable is still written to ``result.json`` with ``"usable": false`` and the
     reason, so a user can look, but without ROS exports or overlays; with no estimate at all nothing is
     written. ``args`` carries output, the export options (``add_export_arguments``), min_motions,
     max_std_deg, max_std_mm. ``base_frame`` and ``calib_name`` are the TF parent and the easy_handeye2
-    name (the options or their defaults). Returns the exit code: 0 usable (written), 1 not usable.
+    name (the options or their defaults). ``report`` (``calibrate``), given the result dict and the overlay
+    images, returns the HTML report, written with the result (usable or not) to ``report_path(output)``.
+    Returns the exit code: 0 usable (written), 1 not usable.
     """
     criteria = UsableCriteria(min_motions=args.min_motions, max_std_deg=args.max_std_deg, max_std_mm=args.max_std_mm)
     output = Path(args.output)
@@ -125,9 +129,11 @@ def finish(run: CalibrationRun, args: argparse.Namespace, base_frame: str,
     planned = plan_exports(T_camera_base, args, base_frame, calib_name, output)
     edge = planned.edge
     if why:
-        write_files_atomic({output: json.dumps(result_dict(run, edge, {}, why, planned.calib_name,
-                                                           planned.optical_frame), indent=2) + "\n"})
-        print(f"no usable calibration: {why}. Wrote {output} with \"usable\": false (no ROS exports).")
+        unusable = result_dict(run, edge, {}, why, planned.calib_name, planned.optical_frame)
+        pages = {report_path(output): report(unusable, {})} if report is not None else {}
+        write_files_atomic({output: json.dumps(unusable, indent=2) + "\n", **pages})
+        print(f"no usable calibration: {why}. Wrote {output} with \"usable\": false (no ROS exports)"
+              + (f" and {report_path(output)}." if pages else "."))
         if truth is not None:
             rot, trans = pose_errors(T_camera_base, truth)
             print(f"true error: rotation {rot:.2e} rad ({np.degrees(rot):.4f} deg), translation {trans * 1e3:.3f} mm")
@@ -135,7 +141,8 @@ def finish(run: CalibrationRun, args: argparse.Namespace, base_frame: str,
     written = {k: p for k, p in planned.paths.items() if k != "installed_calib"}
     result = result_dict(run, edge, written, "", planned.calib_name, planned.optical_frame)
     images = overlays() if overlays is not None else {}
-    write_files_atomic({**planned.files, output: json.dumps(result, indent=2) + "\n", **images},
+    pages = {report_path(output): report(result, images)} if report is not None else {}
+    write_files_atomic({**planned.files, output: json.dumps(result, indent=2) + "\n", **images, **pages},
                        planned.modes)  # all or nothing
 
     np.set_printoptions(precision=6, suppress=True)
@@ -156,6 +163,8 @@ def finish(run: CalibrationRun, args: argparse.Namespace, base_frame: str,
     print(f"wrote {output}")
     for path in images:
         print(f"wrote {path} (overlay)")
+    for path in pages:
+        print(f"wrote {path} (report)")
     print_exports(planned)
     print(f"done in {time.perf_counter() - started:.1f} s")
     return 0
@@ -166,7 +175,8 @@ OVERLAY_PATTERN = "overlay_motion_*.png"
 
 
 def check_outputs(output: Path, inputs: Sequence[Path], force: bool = False, overlay_dir: Path | None = None,
-                  other_outputs: Sequence[Path] = (), installed_calib: Path | None = None) -> None:
+                  other_outputs: Sequence[Path] = (), installed_calib: Path | None = None,
+                  report: bool = False) -> None:
     """Refuse, before any work, outputs that would damage the input or an earlier result.
 
     Args:
@@ -178,6 +188,7 @@ def check_outputs(output: Path, inputs: Sequence[Path], force: bool = False, ove
         other_outputs: folders the run creates (e.g. ``run --record DIR``): they too must stay out of the
             inputs, and the result and its exports must stay out of them.
         installed_calib: ``--install-calib``'s target in ``~/.ros2/easy_handeye2/calibrations/``, if any.
+        report: the run writes ``report_path(output)`` too.
 
     Raises:
         InvalidInputError: an output is not .json, its directory does not exist, it is (or is inside)
@@ -188,7 +199,8 @@ def check_outputs(output: Path, inputs: Sequence[Path], force: bool = False, ove
         raise InvalidInputError(f"--output must be a .json file, got {output}")
     if not output.parent.is_dir():
         raise InvalidInputError(f"--output: directory {output.parent} does not exist")
-    files = [output, *export_paths(output).values(), *([installed_calib] if installed_calib else [])]
+    files = [output, *export_paths(output).values(), *([installed_calib] if installed_calib else []),
+             *([report_path(output)] if report else [])]
     for path in [*files, *([overlay_dir] if overlay_dir is not None else []), *other_outputs]:
         for source in inputs:
             if _within(path, source):

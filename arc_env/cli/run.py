@@ -27,6 +27,7 @@ import numpy as np
 
 from arc_env.cli.progress import Progress
 from arc_env.cli.result import check_frame_names, check_outputs, finish
+from arc_env.cli.viewer import check_rerun_save, open_rerun_log
 from arc_env.robot.driver import Sweep, load_driver
 from arc_env.robot.exports import (
     DEFAULT_CALIB_NAME,
@@ -65,6 +66,7 @@ def run_online(args: argparse.Namespace) -> int:
                   installed_calib=easy_handeye2_install_path(calib_name) if args.install_calib else None)
     if args.motions < 3:
         raise InvalidInputError("--motions must be >= 3")
+    check_rerun_save(args, [resume] if resume else [], args.force)
     previous = read_recording(resume, min_motions=1) if resume else None
     driver = load_driver(args.driver)
     base_frame = args.base_frame or ros_base_frame(driver.robot.base_body)
@@ -84,6 +86,9 @@ def run_online(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     informed = getattr(args, "planner", "random") == "informed"
     session = driver_session(driver, SessionConfig(), on_sweep)
+    log = open_rerun_log(args, session.robot, driver.intrinsics, f"run {args.driver}",
+                         getattr(driver, "T_camera_base_true", None))  # simulated drivers know the truth
+    session.observer = log
     renderer = TwinRenderer(session.robot, driver.intrinsics) if informed else None
     session.renderer = renderer
     diagnostics: list[MotionDiagnostic] = []
@@ -142,9 +147,17 @@ def run_online(args: argparse.Namespace) -> int:
                f"--resume {args.record} --record NEW_DIR" if kept else
                "no motion was kept (record with --record DIR to be able to --resume)")
         print(f"arc-calib run: {what}; {how}. No result written.", file=sys.stderr)
+        if log is not None:  # the log of the motions done is kept: it may show what went wrong
+            log.close()
+            log = None
         if isinstance(exc, KeyboardInterrupt):
             raise
         return 1
+    except BaseException:
+        if log is not None:
+            log.abort()
+            log = None
+        raise
     finally:
         if writer is not None:
             writer.abort()
@@ -153,6 +166,10 @@ def run_online(args: argparse.Namespace) -> int:
         close = getattr(driver, "close", None)
         if callable(close):
             close()
+    if log is not None:
+        log.finish(calibrator)
+        log.close()
+        print(f"rerun log: {args.rerun_save}" if args.rerun_save else "rerun log: sent to the viewer", file=sys.stderr)
     run = CalibrationRun(f"driver {args.driver}", calibrator, diagnostics, seconds)
     run.check_focal()
     run.seconds["total"] = time.perf_counter() - started
@@ -171,7 +188,7 @@ def _replay(previous: Recording, session: CalibrationSession, writer: RecordingW
     for m in previous.usable:
         assert m.joint is not None
         frames = previous.frames(m)
-        outcome = session.replay(m.q_start, m.joint, m.delta, session.track(frames, m.delta))
+        outcome = session.replay(m.q_start, m.joint, m.delta, session.track(frames, m.delta), frames)
         if writer is not None:
             positions = np.tile(m.q_start, (m.n_frames, 1))
             positions[:, m.joint] += m.delta

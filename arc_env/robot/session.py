@@ -168,6 +168,37 @@ def full_tracks(tracks: Sequence[KeypointTrack], deltas: FloatArray) -> int:
 
 
 @dataclass(frozen=True)
+class SeenMotion:
+    """One motion as the calibrator took it, for an observer (``CalibrationSession.observer``, e.g. a viewer's log).
+
+    Attributes:
+        index: the motion's position: the session's count of executed motions, or in the recording.
+        q_start: (n,) rad, Q.
+        joint: the joint that turned.
+        deltas: (F,) rad, its offset from Q at each frame.
+        frames: the F images (H, W, 3) uint8 RGB, or None (oracle tracks).
+        tracks: its keypoint tracks (pixels, the deltas of their frames).
+        outcome: the calibrator's verdict.
+        calibrator: the calibrator after it took the motion (its ``state`` is the estimate then).
+        name: the recording's name of the motion, or "".
+    """
+
+    index: int
+    q_start: FloatArray
+    joint: int
+    deltas: FloatArray
+    frames: Sequence[ImageArray] | None
+    tracks: Sequence[KeypointTrack]
+    outcome: MotionOutcome
+    calibrator: Calibrator
+    name: str = ""
+
+
+#: Called with every motion the calibrator took (``CalibrationSession.observer``).
+MotionObserver = Callable[[SeenMotion], None]
+
+
+@dataclass(frozen=True)
 class StepResult:
     """One ``CalibrationSession.step``.
 
@@ -202,6 +233,7 @@ class CalibrationSession:
         last_transit: the last executed transit (None before the first motion).
         n_motions: executed motions; ``n_refused``: refused ones.
         np_random: the generator the session was reset with.
+        observer: called with a ``SeenMotion`` after each executed motion (None: nothing is called).
     """
 
     def __init__(self, robot: RobotModel, intrinsics: CameraIntrinsics, executor: MotionExecutor | None = None,
@@ -211,6 +243,7 @@ class CalibrationSession:
         self.executor = executor
         self.config = config or SessionConfig()
         self.renderer = renderer
+        self.observer: MotionObserver | None = None
         self.calibrator: Calibrator | None = None
         self.executed: list[tuple[FloatArray, int, float]] = []
         self.last_transit: TransitPath | None = None
@@ -305,7 +338,16 @@ class CalibrationSession:
         t0 = time.perf_counter()
         outcome = self._observe_executed(acquired.q_start, joint, acquired.deltas, tracks)
         seconds["solver"] = time.perf_counter() - t0
+        self.notify(self.n_motions - 1, acquired.q_start, joint, acquired.deltas, acquired.frames, tracks, outcome)
         return StepResult("", transit, outcome, len(acquired.deltas), seconds)
+
+    def notify(self, index: int, q_start: FloatArray, joint: int, deltas: FloatArray,
+               frames: Sequence[ImageArray] | None, tracks: Sequence[KeypointTrack], outcome: MotionOutcome,
+               name: str = "") -> None:
+        """Hand the motion the calibrator just took to the ``observer``, if any (arguments as ``SeenMotion``'s)."""
+        if self.observer is not None and self.calibrator is not None:
+            self.observer(SeenMotion(index, q_start, joint, np.asarray(deltas, dtype=np.float64), frames, tracks,
+                                     outcome, self.calibrator, name))
 
     def _observe_executed(self, q_start: FloatArray, joint: int, deltas: FloatArray,
                           tracks: Sequence[KeypointTrack]) -> MotionOutcome:
@@ -331,8 +373,8 @@ class CalibrationSession:
             tracks.append(KeypointTrack(t.pixels, np.asarray(deltas)[k], np.asarray(velocities)[k]))
         return tracks
 
-    def replay(self, q_start: FloatArray, joint: int, deltas: FloatArray, tracks: Sequence[KeypointTrack]
-               ) -> MotionOutcome:
+    def replay(self, q_start: FloatArray, joint: int, deltas: FloatArray, tracks: Sequence[KeypointTrack],
+               frames: Sequence[ImageArray] | None = None) -> MotionOutcome:
         """Add a motion executed before (a recording being resumed): it counts as executed, like ``step``'s.
 
         Args:
@@ -340,13 +382,16 @@ class CalibrationSession:
             joint: the joint that turned.
             deltas: (F,) rad, its offset at each frame (the last is the turn Delta).
             tracks: its keypoint tracks.
+            frames: its images, for the ``observer`` only (None: not at hand).
         """
         if self.calibrator is None:
             raise InvalidInputError("call reset() before replay()")
         q_start = self.robot.check_q(q_start)
         self.executed.append((q_start.copy(), joint, float(deltas[-1])))
         self.robot.set_swept(q_start, joint, float(deltas[-1]))
-        return self._observe_executed(q_start, joint, deltas, tracks)
+        outcome = self._observe_executed(q_start, joint, deltas, tracks)
+        self.notify(self.n_motions - 1, q_start, joint, deltas, frames, tracks, outcome)
+        return outcome
 
     def observe(self, q_start: FloatArray, joint: int, tracks: Sequence[KeypointTrack],
                 update: bool = True) -> MotionOutcome:
@@ -444,6 +489,7 @@ class MotionDiagnostic:
     linear: bool = False
     note: str = ""
     seconds: float = 0.0
+    front_end: str = ""
 
 
 @dataclass
@@ -509,7 +555,8 @@ def driver_session(driver: RobotDriver, config: SessionConfig | None = None,
 
 def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = None,
                         config: CalibratorConfig | None = None,
-                        on_motion: Callable[[str], None] | None = None) -> CalibrationRun:
+                        on_motion: Callable[[str], None] | None = None,
+                        observer: MotionObserver | None = None) -> CalibrationRun:
     """Track every usable motion and calibrate; motions pruned on the way keep their reasons.
 
     Args:
@@ -517,6 +564,7 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
         tracker: tracking settings.
         config: solver settings (default ``CalibratorConfig()``: more tracks per motion than online).
         on_motion: called with a one-line status after each motion (a progress display).
+        observer: called with each motion the calibrator took, frames included (``SeenMotion``).
 
     Raises:
         InvalidInputError: a frame or video does not decode (the message names it).
@@ -525,6 +573,7 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
                                  config=SessionConfig(calibrator=config or CalibratorConfig(),
                                                       tracker=tracker or TrackerConfig()))
     session.reset()
+    session.observer = observer
     calibrator = session.calibrator
     assert calibrator is not None
     names = recording.joint_names
@@ -543,7 +592,6 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
             frames = recording.frames(m)
             t1 = time.perf_counter()
             tracks = track_recorded(session, frames, m)
-            del frames
             t2 = time.perf_counter()
             diag.tracks = len(tracks)
             if not tracks:
@@ -560,6 +608,9 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
             seconds["decode"] += t1 - t0
             seconds["tracking"] += t2 - t1
             seconds["solver"] += time.perf_counter() - t2
+            if tracks:
+                session.notify(len(diagnostics) - 1, m.q_start, m.joint, m.delta, frames, tracks, outcome, m.name)
+            del frames
         diag.seconds = time.perf_counter() - t0
         if on_motion is not None:
             what = diag.reason[:60] if diag.reason and not diag.tracks else f"{diag.tracks} tracks"
@@ -585,7 +636,8 @@ OFFSET_PASS_SIGMAS = 2.0
 
 def calibrate_reading_offset(read: Callable[[float], Recording], given_s: float = 0.0,
                              tracker: TrackerConfig | None = None, config: CalibratorConfig | None = None,
-                             on_motion: Callable[[str], None] | None = None, max_passes: int = 3) -> CalibrationRun:
+                             on_motion: Callable[[str], None] | None = None, max_passes: int = 3,
+                             observer: MotionObserver | None = None) -> CalibrationRun:
     """``calibrate_recording``, read again at the corrected time offset while the correction is large.
 
     The bundle adjustment's time-offset estimate is first order in the correction (each frame's turn
@@ -604,12 +656,13 @@ def calibrate_reading_offset(read: Callable[[float], Recording], given_s: float 
         config: solver settings, as ``calibrate_recording``'s.
         on_motion: progress callback, as ``calibrate_recording``'s (called again on every pass).
         max_passes: most calibrations; >= 1.
+        observer: as ``calibrate_recording``'s (called again on every pass).
     """
     if max_passes < 1:
         raise InvalidInputError(f"max_passes must be >= 1, got {max_passes}")
     offset = given_s
     for _ in range(max_passes):
-        run = calibrate_recording(read(offset), tracker, config, on_motion)
+        run = calibrate_recording(read(offset), tracker, config, on_motion, observer)
         s = run.calibrator.state
         if (s.time_offset_s is None or s.time_offset_std_s is None
                 or abs(s.time_offset_s) <= max(OFFSET_PASS_TOL_S, OFFSET_PASS_SIGMAS * s.time_offset_std_s)):
@@ -638,7 +691,7 @@ def estimate_status(state: CalibrationState) -> str:
 def copy_report(report: MotionReport, diag: MotionDiagnostic) -> None:
     """Fill a diagnostic from the calibrator's final report on that motion."""
     diag.accepted, diag.inlier_tracks, diag.linear = report.accepted, report.n_inlier_tracks, report.linear
-    diag.reason = report.reason
+    diag.reason, diag.front_end = report.reason, report.front_end
     diag.axis_error_rad, diag.plane_distance_m = report.eps_a, report.eps_d
     diag.note = f"no axis for the linear stage: {report.stage_one}" if report.stage_one and report.accepted else ""
 

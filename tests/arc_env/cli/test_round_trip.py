@@ -104,7 +104,7 @@ def _assert_close_to_truth(result, truth_file):
 
 def test_png_round_trip_with_pruned_motions_exports_and_overlay(recording, tmp_path, capsys):
     result, text = _calibrate(recording, tmp_path, capsys, "--overlay", str(tmp_path / "overlay"),
-                              "--base-frame", "panda_link0")
+                              "--base-frame", "panda_link0", "--rerun-save", str(tmp_path / "calibrate.rrd"))
     _assert_close_to_truth(result, ground_truth_path(recording))
     assert "true error" in text and "wrote" in text
     per_motion = {m["motion"]: m for m in result["per_motion"]}
@@ -135,7 +135,8 @@ def test_png_round_trip_with_pruned_motions_exports_and_overlay(recording, tmp_p
     assert "--frame-id panda_link0 --child-frame-id camera_color_optical_frame" in tf
     assert os.access(tmp_path / "result.tf.sh", os.X_OK)
     assert {p.name for p in tmp_path.glob("result.*")} == {"result.json", "result.calib", "result.tf.sh", "result.urdf",
-                                                           "result.urdf.xacro", "result.launch.py"}
+                                                           "result.urdf.xacro", "result.launch.py",
+                                                           "result.report.html"}
     assert result["exports"] == {"easy_handeye2": "result.calib", "static_transform_publisher": "result.tf.sh",
                                  "urdf": "result.urdf", "xacro": "result.urdf.xacro", "launch": "result.launch.py"}
     # re-exported without recalibrating, under another base frame: the same transform
@@ -147,6 +148,34 @@ def test_png_round_trip_with_pruned_motions_exports_and_overlay(recording, tmp_p
     overlays = sorted((tmp_path / "overlay").glob("overlay_motion_*.png"))
     assert 1 <= len(overlays) <= 4
     assert cv2.imread(str(overlays[0])).shape == (540, 960, 3)
+    _assert_report_and_rerun_log(tmp_path, result, len(overlays))
+
+
+def _assert_report_and_rerun_log(folder, result, n_overlays):
+    """The report holds a row per motion and the overlays; the Rerun log holds the frames and everything else."""
+    import html.parser
+
+    from arc_env.robot.rerun_log import ENTITIES, TRUTH_ENTITIES
+    from tests.arc_env.cli.test_viewer import _entities
+
+    page = (folder / "result.report.html").read_text()
+    cells: list[str] = []
+
+    class Cells(html.parser.HTMLParser):
+        def handle_data(self, data):
+            cells.append(data.strip())
+
+    Cells().feed(page)
+    for m in result["per_motion"]:
+        status = "accepted" if m["accepted"] else "rejected"
+        k = cells.index(m["motion"])
+        assert cells[k + 1] == m["joint"] or m["joint"] is None, cells[k:k + 3]
+        assert status in cells[k:k + 12]
+    assert page.count('src="data:image/png;base64,') == n_overlays and "Usable" in page
+    rows = _entities(folder / "calibrate.rrd")
+    assert set(ENTITIES) | set(TRUTH_ENTITIES) <= set(rows), sorted(set(ENTITIES) - set(rows))
+    n_motions = sum(m["tracks"] > 0 for m in result["per_motion"])  # the two pruned motions are not logged
+    assert rows["log"] == n_motions and n_motions <= rows["image"] <= 12 * n_motions
 
 
 def test_overlay_projection_matches_the_rendered_robot(recording):
@@ -220,7 +249,9 @@ def test_an_estimate_that_is_not_usable_is_written_as_such_without_exports(recor
     result = json.loads(out.read_text())
     assert result["usable"] is False and "too uncertain" in result["unusable_reason"]
     assert result["std"]["translation_mm"] and result["stage"] == "refined"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["result.json"]  # no exports, no overlays
+    # no exports, no overlays; the report says why
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["result.json", "result.report.html"]
+    assert "Not usable: the estimate is too uncertain" in (tmp_path / "result.report.html").read_text()
 
 
 @pytest.mark.parametrize("scale", [0.95, 0.98, 1.02, 1.05])
