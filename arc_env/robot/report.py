@@ -1,6 +1,6 @@
 """``report.html``: one calibration for a person to read, in one standalone file (no network).
 
-``arc-calib calibrate`` writes it beside the result (``report_path``: ``result.json`` -> ``result.report.html``),
+``arc-calib calibrate`` writes it beside the result (``report_path``: ``report.html`` beside ``result.json``),
 committed with the result and its exports, for usable and unusable results alike. It holds the verdict
 and the estimate, a table of the motions (joint, front end, axis error, tracks kept, accepted or why not),
 a histogram of the reprojection residuals of every track at the final pose, the 1-sigma (and, in
@@ -57,10 +57,8 @@ code { font-size: 0.9em; }
 
 
 def report_path(output: Path) -> Path:
-    """The report of result file ``output``: ``result.json`` -> ``result.report.html``, beside it."""
-    output = Path(output)
-    stem = output.stem if output.suffix == ".json" else output.name
-    return output.with_name(f"{stem}.report.html")
+    """The report of result file ``output``: ``report.html`` beside it (the name the issue gives users)."""
+    return Path(output).with_name("report.html")
 
 
 @dataclass

@@ -135,8 +135,8 @@ def test_png_round_trip_with_pruned_motions_exports_and_overlay(recording, tmp_p
     assert "--frame-id panda_link0 --child-frame-id camera_color_optical_frame" in tf
     assert os.access(tmp_path / "result.tf.sh", os.X_OK)
     assert {p.name for p in tmp_path.glob("result.*")} == {"result.json", "result.calib", "result.tf.sh", "result.urdf",
-                                                           "result.urdf.xacro", "result.launch.py",
-                                                           "result.report.html"}
+                                                           "result.urdf.xacro", "result.launch.py"}
+    assert (tmp_path / "report.html").is_file()
     assert result["exports"] == {"easy_handeye2": "result.calib", "static_transform_publisher": "result.tf.sh",
                                  "urdf": "result.urdf", "xacro": "result.urdf.xacro", "launch": "result.launch.py"}
     # re-exported without recalibrating, under another base frame: the same transform
@@ -158,7 +158,7 @@ def _assert_report_and_rerun_log(folder, result, n_overlays):
     from arc_env.robot.rerun_log import ENTITIES, TRUTH_ENTITIES
     from tests.arc_env.cli.test_viewer import _entities
 
-    page = (folder / "result.report.html").read_text()
+    page = (folder / "report.html").read_text()
     cells: list[str] = []
 
     class Cells(html.parser.HTMLParser):
@@ -250,8 +250,8 @@ def test_an_estimate_that_is_not_usable_is_written_as_such_without_exports(recor
     assert result["usable"] is False and "too uncertain" in result["unusable_reason"]
     assert result["std"]["translation_mm"] and result["stage"] == "refined"
     # no exports, no overlays; the report says why
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["result.json", "result.report.html"]
-    assert "Not usable: the estimate is too uncertain" in (tmp_path / "result.report.html").read_text()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.html", "result.json"]
+    assert "Not usable: the estimate is too uncertain" in (tmp_path / "report.html").read_text()
 
 
 @pytest.mark.parametrize("scale", [0.95, 0.98, 1.02, 1.05])

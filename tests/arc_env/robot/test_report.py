@@ -114,7 +114,7 @@ def test_histogram_counts_every_value_and_clips_the_tail():
 
 
 def test_report_path_sits_beside_the_result(tmp_path):
-    assert report_path(tmp_path / "result.json") == tmp_path / "result.report.html"
+    assert report_path(tmp_path / "result.json") == tmp_path / "report.html"
 
 
 CHROMIUM = next((shutil.which(c) for c in ("chromium-headless-shell", "chromium", "chromium-browser")
@@ -125,7 +125,7 @@ CHROMIUM = next((shutil.which(c) for c in ("chromium-headless-shell", "chromium"
 def test_report_renders_in_headless_chromium(rng, tmp_path):
     import cv2
 
-    page = tmp_path / "result.report.html"
+    page = tmp_path / "report.html"
     page.write_text(_hostile_report(rng))
     shot = tmp_path / "shot.png"
     subprocess.run([CHROMIUM, "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--window-size=1000,1400",
