@@ -771,13 +771,7 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     if good.sum() < 2:
         raise InsufficientMotionsError("fewer than two tracks agree with the refined pose")
     sub2 = _subset(sub, good)
-    scale = None
-    if config.track_weights:
-        rss = np.bincount(sub.track, weights=np.sum(res**2, axis=1), minlength=sub.n_tracks)[good]
-        dof = 2 * np.bincount(sub2.track, minlength=sub2.n_tracks) - 3
-        nu = config.weight_prior_dof
-        track_sigma = np.sqrt((nu * sigma**2 + rss) / (nu + np.maximum(dof, 0)))
-        scale = (max(sigma, 1e-6) / np.maximum(track_sigma, 1e-6))[sub2.track]
+    scale = _track_scale(sub, res, good, sigma, config) if config.track_weights else None
     T, pts2, problem, x, sol = _solve(sub2, T, pts[good], "linear", 1.0, config.max_nfev, 1e-8,
                                       time_offset=(float(x[6]), max(sigma, 1e-6) / bound) if estimate else None,
                                       backend=config.backend, scale=scale)
@@ -785,16 +779,7 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     raw = fun if scale is None else (fun.reshape(-1, 2) / scale[:, None]).ravel()  # px, unweighted
     summaries = _motion_summaries(problem, x, fun)
     cov, sigma_fit = summaries_covariance(summaries, problem.prior_row())
-    offset = offset_std = correlation = None
-    if estimate:
-        offset, offset_std = float(x[6]), float(np.sqrt(cov[6, 6]))
-        correlation = cov[6, :6] / np.sqrt(np.diag(cov)[:6] * cov[6, 6])
-        cov = cov[:6, :6]
-        if abs(offset) > bound:
-            raise TimeOffsetError(f"the estimated time offset between the joint and camera clocks is "
-                                  f"{offset * 1e3:+.1f} ms (1-sigma {offset_std * 1e3:.1f} ms), beyond the "
-                                  f"+-{bound * 1e3:g} ms the bundle adjustment may estimate: give the offset "
-                                  "(e.g. calibrate --time-offset) or turn the estimate off")
+    cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
     inliers = np.zeros(tracks.n_tracks, dtype=bool)
     kept_idx = np.flatnonzero(keep)[good]
     inliers[kept_idx] = True
@@ -858,13 +843,7 @@ def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionS
     if good.sum() < 1:
         raise InsufficientMotionsError("no new track agrees with the refined pose")
     sub2 = _subset(sub, good)
-    scale = None
-    if config.track_weights:
-        rss = np.bincount(sub.track, weights=np.sum(res**2, axis=1), minlength=sub.n_tracks)[good]
-        dof = 2 * np.bincount(sub2.track, minlength=sub2.n_tracks) - 3
-        nu = config.weight_prior_dof
-        track_sigma = np.sqrt((nu * sigma**2 + rss) / (nu + np.maximum(dof, 0)))
-        scale = (max(sigma, 1e-6) / np.maximum(track_sigma, 1e-6))[sub2.track]
+    scale = _track_scale(sub, res, good, sigma, config) if config.track_weights else None
     # The summaries' pose parameters are about T0; after the robust pass the anchor moves to its pose.
     s1 = float(x[6]) if estimate else None
     prior = summaries_prior(earlier, T, 0.0 if estimate else None)
@@ -876,15 +855,7 @@ def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionS
     new = _motion_summaries(problem, x, fun)
     summaries = tuple(earlier) + new
     cov, sigma_fit = summaries_covariance(summaries, problem.prior_row())
-    offset = offset_std = correlation = None
-    if estimate:
-        offset, offset_std = float(x[6]), float(np.sqrt(cov[6, 6]))
-        correlation = cov[6, :6] / np.sqrt(np.diag(cov)[:6] * cov[6, 6])
-        cov = cov[:6, :6]
-        if abs(offset) > bound:
-            raise TimeOffsetError(f"the estimated time offset between the joint and camera clocks is "
-                                  f"{offset * 1e3:+.1f} ms (1-sigma {offset_std * 1e3:.1f} ms), beyond the "
-                                  f"+-{bound * 1e3:g} ms the bundle adjustment may estimate")
+    cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
     inliers = np.zeros(tracks.n_tracks, dtype=bool)
     kept_idx = np.flatnonzero(keep)[good]
     inliers[kept_idx] = True
@@ -926,6 +897,39 @@ def screen_start(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig,
     n_left_out = int(np.sum(~ok[tracks.track]))
     total = float(np.sum(np.minimum(sol.fun**2, cap_px**2))) + 2 * n_left_out * cap_px**2
     return T, total / (2 * tracks.track.size)
+
+
+def _track_scale(tracks: TrackSet, res: FloatArray, good: NDArray[np.bool_], sigma: float,
+                 config: RefinementConfig) -> FloatArray:
+    """(P_good,) each kept observation's residual multiplier sigma / sigma_t (``RefinementConfig.track_weights``).
+
+    ``res`` (P, 2) px are the robust pass's residuals of ``tracks``, ``good`` (T,) the tracks kept, ``sigma``
+    px the common noise; returned for the observations of the kept tracks, in order.
+    """
+    kept = good[tracks.track]
+    rss = np.bincount(tracks.track, weights=np.sum(res**2, axis=1), minlength=tracks.n_tracks)[good]
+    dof = 2 * np.bincount(tracks.track[kept], minlength=tracks.n_tracks)[good] - 3
+    nu = config.weight_prior_dof
+    track_sigma = np.sqrt((nu * sigma**2 + rss) / (nu + np.maximum(dof, 0)))
+    per_track = max(sigma, 1e-6) / np.maximum(track_sigma, 1e-6)
+    return per_track[(np.cumsum(good) - 1)[tracks.track[kept]]]
+
+
+def _split_time_offset(cov: FloatArray, x: FloatArray, bound: float
+                       ) -> tuple[FloatArray, float, float, FloatArray]:
+    """The pose covariance (6, 6), the time offset s, its 1-sigma and correlations from the (7, 7) covariance.
+
+    Raises:
+        TimeOffsetError: |s| beyond ``bound``.
+    """
+    offset, offset_std = float(x[6]), float(np.sqrt(cov[6, 6]))
+    correlation = cov[6, :6] / np.sqrt(np.diag(cov)[:6] * cov[6, 6])
+    if abs(offset) > bound:
+        raise TimeOffsetError(f"the estimated time offset between the joint and camera clocks is "
+                              f"{offset * 1e3:+.1f} ms (1-sigma {offset_std * 1e3:.1f} ms), beyond the "
+                              f"+-{bound * 1e3:g} ms the bundle adjustment may estimate: give the offset "
+                              "(e.g. calibrate --time-offset) or turn the estimate off")
+    return cov[:6, :6], offset, offset_std, correlation
 
 
 def _turned_by_offset(tracks: TrackSet, time_offset_s: float) -> TrackSet:
