@@ -38,7 +38,7 @@ def test_planners_load_no_arc_env_module():
 def test_the_real_robot_side_loads_neither_gymnasium_nor_the_simulator_and_sets_no_gl():
     loaded = _loaded_after("import arc_env.robot.recording, arc_env.robot.session, arc_env.robot.tracking, "
                            "arc_env.robot.exports, arc_env.robot.overlay, arc_env.robot.driver, arc_env.robot.library, "
-                           "arc_env.robot.bag, arc_env.robot.segmentation, arc_env.robot.timing, "
+                           "arc_env.robot.bag, arc_env.robot.segmentation, arc_env.robot.timing, arc_env.robot.verify, "
                            "arc_env.robot.motion_script, arc_env.robot.obstacles, arc_env.robot.report, "
                            "arc_env.robot.rerun_log, arc_env.cli.plan")
     modules = loaded["modules"]

@@ -5,7 +5,8 @@
 baseline) all run the same kind of episode: the benchmarks' fixed camera pose ``pose``, the env
 seeded with ``1000 * pose + seed`` and the planner's generator with the same number, a budget of
 ``motions`` executed motions. An :class:`EpisodeSpec` names one; :func:`run_episode` runs it and
-returns a plain JSON-able record; :func:`run_episodes` runs many, in worker processes if asked, and
+returns a plain JSON-able record; :func:`run_episodes` runs many, in worker processes or as Ray tasks
+(a local Ray cluster, or a running one: ``--ray``, ``--ray-address``) if asked, and
 with an :class:`EpisodeStore` keeps every finished record on disk so that a study interrupted after
 hours continues where it stopped, and so that the three scripts share runs they have in common (the
 random tracked run at 1080p is the same episode in all three).
@@ -346,16 +347,21 @@ _WORKER_THREADS = {"LP_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_
 
 
 def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None, workers: int = 1,
-                 on_record: Callable[[dict[str, Any], bool], None] | None = None) -> dict[EpisodeSpec, dict[str, Any]]:
+                 on_record: Callable[[dict[str, Any], bool], None] | None = None,
+                 ray_address: str | None = None) -> dict[EpisodeSpec, dict[str, Any]]:
     """Run every spec not already in ``store``; returns all records by spec.
 
     Args:
         specs: the episodes.
         store: where finished records are kept and looked up; None runs everything.
         workers: processes running episodes at once (1: in this process). With more than one, each
-            worker's renderer and BLAS use one thread.
+            worker's renderer and BLAS use one thread. With Ray and a local cluster: the cluster's CPUs
+            (1: all of this machine's).
         on_record: called as ``on_record(record, from_store)`` as each record becomes available
             (stored ones first, then in order of completion).
+        ray_address: run the episodes as Ray tasks (``_run_on_ray``): ``RAY_LOCAL`` starts a local
+            cluster for this call, anything else is the address of a running one (``ray.init(address=...)``:
+            ``auto``, ``HOST:PORT``, ``ray://HOST:10001``). None: no Ray.
     """
     if workers < 1:
         raise InvalidInputError(f"workers must be >= 1, got {workers}")
@@ -378,7 +384,10 @@ def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None
         if on_record:
             on_record(record, False)
 
-    if workers == 1 or len(todo) <= 1:
+    if ray_address is not None:
+        if todo:
+            _run_on_ray(todo, ray_address, workers, finish)
+    elif workers == 1 or len(todo) <= 1:
         for spec in todo:
             finish(run_episode(spec))
     else:
@@ -398,13 +407,67 @@ def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None
     return {spec: records[spec] for spec in specs}
 
 
+#: ``run_episodes``'s ``ray_address`` that starts a local Ray cluster (``--ray``).
+RAY_LOCAL = "local"
+#: A local Ray cluster's object store, bytes: records are a few kB each, so Ray's default (30 % of the
+#: memory, reserved in /dev/shm) would only take memory from the episodes.
+RAY_OBJECT_STORE_BYTES = 200 * 1024**2
+
+
+def _run_on_ray(todo: list[EpisodeSpec], address: str, workers: int,
+                finish: Callable[[dict[str, Any]], None]) -> None:
+    """Run ``todo`` as Ray tasks (one CPU each, one renderer and BLAS thread each); ``finish`` each record.
+
+    Records are finished (stored) in order of completion, as with the process pool, so an interrupted study
+    resumes from the store. A local cluster (``RAY_LOCAL``) is started with ``workers`` CPUs (1: all of
+    this machine's) and stopped at the end; from a running cluster only this driver disconnects.
+
+    Raises:
+        InvalidInputError: Ray is not installed, or the cluster cannot be reached.
+    """
+    try:
+        import ray
+    except ImportError as exc:
+        raise InvalidInputError("--ray / --ray-address need Ray: pip install 'arc-calib[ray]' "
+                                "(or pip install ray)") from exc
+    local = address == RAY_LOCAL
+    options: dict[str, Any] = {"runtime_env": {"env_vars": dict(_WORKER_THREADS)}, "logging_level": "WARNING"}
+    if local:
+        options.update(address="local", num_cpus=workers if workers > 1 else os.cpu_count(),
+                       object_store_memory=RAY_OBJECT_STORE_BYTES, include_dashboard=False)
+    else:
+        options.update(address=address)
+    try:
+        ray.init(**options)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        what = "start a local Ray cluster" if local else f"reach the Ray cluster at {address!r}"
+        raise InvalidInputError(f"cannot {what}: {exc}") from exc
+    try:
+        task = ray.remote(num_cpus=1, max_retries=0)(run_episode)
+        pending = [task.remote(spec) for spec in todo]
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            finish(ray.get(done[0]))
+    finally:
+        ray.shutdown()
+
+
 def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
     """The study scripts' ``--workers N``, ``--store DIR`` (read back by :func:`run_from_arguments`) and the look."""
     parser.add_argument("--realism", choices=REALISMS, default="clean",
                         help="camera and robot: clean renders (default) or realistic (noise, blur, H.264, shadows)")
     parser.add_argument("--appearance", choices=APPEARANCES,
                         help="the robot's surface (default: painted when clean, realistic when realistic)")
-    parser.add_argument("--workers", type=int, default=1, help="episodes run in parallel processes (default 1)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="episodes run in parallel processes (default 1); with --ray, the local cluster's CPUs "
+                             "(default: all)")
+    ray = parser.add_mutually_exclusive_group()
+    ray.add_argument("--ray", action="store_true",
+                     help="run the episodes as Ray tasks on a local Ray cluster started for this run (pip install "
+                          "'arc-calib[ray]')")
+    ray.add_argument("--ray-address", metavar="ADDR",
+                     help="run the episodes on a running Ray cluster: 'auto' (the one this machine belongs to), "
+                          "HOST:PORT or ray://HOST:10001; its nodes need this project installed at the same commit")
     parser.add_argument("--store", type=Path, help="keep finished episodes here and reuse them (resumable runs, "
                         "shared by bench_episode.py, compare_planners.py and reproduce_paper.py)")
 
@@ -412,8 +475,10 @@ def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
 def run_from_arguments(specs: Iterable[EpisodeSpec], args: argparse.Namespace,
                        on_record: Callable[[dict[str, Any], bool], None] | None = None
                        ) -> dict[EpisodeSpec, dict[str, Any]]:
-    """:func:`run_episodes` with the store and workers that :func:`add_runner_arguments` parsed."""
-    return run_episodes(specs, EpisodeStore(args.store) if args.store else None, args.workers, on_record)
+    """:func:`run_episodes` with the store, workers and Ray cluster that :func:`add_runner_arguments` parsed."""
+    ray_address = RAY_LOCAL if getattr(args, "ray", False) else getattr(args, "ray_address", None)
+    return run_episodes(specs, EpisodeStore(args.store) if args.store else None, args.workers, on_record,
+                        ray_address)
 
 
 def write_figures(path: Path, figures: dict[str, Any]) -> None:

@@ -7,6 +7,8 @@
 * ``calibrate`` (``arc_env.cli.calibrate``): a recording in, a calibration and ROS exports out (no simulator).
 * ``run`` (``arc_env.cli.run``): online calibration, a planner driving a ``RobotDriver``.
 * ``export`` (``arc_env.cli.export``): rewrite the ROS exports of an existing result (no recalibration).
+* ``verify`` (``arc_env.cli.verify``): check a result against a fresh recording or bag, the pose held fixed
+  (no simulator).
 * ``plan`` (``arc_env.cli.plan``): a motion script out, a timed joint trajectory of exploratory motions for a
   robot's own controller to replay while a bag records (no simulator).
 
@@ -121,6 +123,11 @@ def main(argv: list[str] | None = None) -> int:
     from arc_env.cli.export import add_arguments as add_export_arguments
 
     add_export_arguments(export)
+    verify = sub.add_parser("verify", help="check a result.json against a fresh recording or bag (pose fixed): "
+                                           "residuals, mask IoU, consistent (exit 0) or inconsistent (exit 1)")
+    from arc_env.cli.verify import add_arguments as add_verify_arguments
+
+    add_verify_arguments(verify)
     plan = sub.add_parser("plan", help="write exploratory motions as a timed joint trajectory (JointTrajectory "
                                        "YAML and CSV) for the robot's controller to replay while recording a bag")
     from arc_env.cli.plan import add_arguments as add_plan_arguments
@@ -150,6 +157,10 @@ def main(argv: list[str] | None = None) -> int:
             from arc_env.cli.export import run_export
 
             return run_export(args)
+        if args.command == "verify":
+            from arc_env.cli.verify import run_verify
+
+            return run_verify(args)
         if args.command == "plan":
             from arc_env.cli.plan import run_plan
 
@@ -159,13 +170,13 @@ def main(argv: list[str] | None = None) -> int:
         return run_calibrate(args)
     except InvalidInputError as exc:
         print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
-        return 2 if args.command in ("calibrate", "record", "run", "export", "plan") else 1
+        return 2 if args.command in ("calibrate", "record", "run", "export", "plan", "verify") else 1
     except ArcCalibError as exc:
         print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
-        return 1
+        return 2 if args.command == "verify" else 1  # verify's 1 means "inconsistent"
     except OSError as exc:
         print(f"arc-calib {args.command}: {exc}", file=sys.stderr)
-        return 1
+        return 2 if args.command == "verify" else 1
     except KeyboardInterrupt:  # outputs are committed only at the end, all or nothing: none was written
         print(f"arc-calib {args.command}: interrupted; no result written", file=sys.stderr)
         return 130

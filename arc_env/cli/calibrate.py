@@ -82,7 +82,7 @@ def _read_ground_truth(path: Path) -> np.ndarray:
 BAG_OPTIONS = ("robot", "base_body", "image_topic", "camera_info_topic", "joint_topic", "camera_info")
 
 
-def _read_input(args: argparse.Namespace, quiet: bool = False) -> Recording:
+def read_input(args: argparse.Namespace, quiet: bool = False) -> Recording:
     """The recording directory or the bag named on the command line."""
     if not is_bag(args.recording):
         given = [f"--{o.replace('_', '-')}" for o in BAG_OPTIONS if getattr(args, o) is not None]
@@ -140,7 +140,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     check_rerun_save(args, inputs, args.force)
     truth = _read_ground_truth(Path(args.ground_truth)) if args.ground_truth else None
     started = time.perf_counter()
-    recording = _read_input(args)
+    recording = read_input(args)
     base_frame = args.base_frame or ros_base_frame(recording.base_body)
     if args.base_frame is None:
         where = (f"{recording.path / 'robot.json'}: the base body" if not isinstance(recording, BagRecording)
@@ -159,7 +159,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         if offset == args.time_offset:
             return recording
         print(f"time offset: reading the joints again at {offset * 1e3:+.2f} ms", file=sys.stderr)
-        return _read_input(argparse.Namespace(**{**vars(args), "time_offset": offset}), quiet=True)
+        return read_input(argparse.Namespace(**{**vars(args), "time_offset": offset}), quiet=True)
 
     log = open_rerun_log(args, recording.robot, recording.intrinsics, f"calibrate {recording.path.name}", truth)
     collected = ReportCollector(truth)
@@ -189,10 +189,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                           "ROS 2 bag directory (sqlite3 or MCAP), a .mcap file or a ROS 1 .bag")
     add_result_arguments(parser)
     parser.add_argument("--overlay", metavar="DIR", help="write PNGs of the robot drawn with the estimate here")
+    add_input_arguments(parser)
+    parser.add_argument("--ground-truth", metavar="FILE",
+                        help="a <recording>.ground_truth.json (simulated recordings): also print the true error")
+    add_rerun_arguments(parser)
+
+
+def add_input_arguments(parser: argparse.ArgumentParser, time_offset_default: str = "default 0") -> None:
+    """The options that read a recording or a bag (``read_input``): ``--time-offset`` and the bag group.
+
+    ``time_offset_default`` ends the ``--time-offset`` help (``verify``'s default is the result's offset).
+    """
     parser.add_argument("--time-offset", type=float, default=0.0, metavar="SECONDS",
                         help="d = t_joint - t_camera, s: the joints at an exposure stamped t are read at t + d "
                              "(d > 0: joint stamps late; record --joint-latency-ms 20 is d = 0.020). Needs time "
-                             "stamps (recording format 2 or a bag); default 0")
+                             f"stamps (recording format 2 or a bag); {time_offset_default}")
     bag = parser.add_argument_group("bags", "options for a ROS bag input (topics are found by message type)")
     bag.add_argument("--robot", metavar="FILE", help="the robot's MJCF or URDF (required for a bag)")
     bag.add_argument("--base-body", metavar="NAME",
@@ -205,6 +216,3 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     bag.add_argument("--min-delta", type=float, default=SegmentConfig.min_delta_rad, metavar="RAD",
                      help="smallest turn of one joint that counts as an exploratory motion, rad (default "
                           f"{SegmentConfig.min_delta_rad})")
-    parser.add_argument("--ground-truth", metavar="FILE",
-                        help="a <recording>.ground_truth.json (simulated recordings): also print the true error")
-    add_rerun_arguments(parser)

@@ -13,6 +13,8 @@ projection is convex for a pinhole; near enough with distortion).
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 import cv2
 import mujoco
 import numpy as np
@@ -24,6 +26,8 @@ from solver.camera import in_image, normalized_from_pixels, pixels_from_camera_p
 from solver.observations import CameraIntrinsics
 
 _SUBPIXEL_BITS = 4  # cv2.fillPoly's fixed-point shift
+#: ``RobotProjector.mask(fast=True)``: triangles whose edges all project shorter than this (px) are drawn as dots.
+FAST_DOT_PX = 2.0
 
 
 class RobotProjector:
@@ -57,16 +61,24 @@ class RobotProjector:
                            [0, (h - 1) / 2], [w - 1, (h - 1) / 2]], dtype=np.float64)
         self._reach = 1.5 * np.max(np.abs(normalized_from_pixels(border, intrinsics)), axis=0)
 
-    def mask(self, q: FloatArray, T_camera_base: FloatArray) -> MaskArray:
-        """Pixels the robot covers at arm configuration q (n_joints,) rad seen from ``T_camera_base``: (H, W) bool."""
+    def mask(self, q: FloatArray, T_camera_base: FloatArray, bodies: Collection[int] | None = None,
+             fast: bool = False) -> MaskArray:
+        """Pixels the robot covers at arm configuration q (n_joints,) rad seen from ``T_camera_base``: (H, W) bool.
+
+        ``bodies``: only these bodies' geoms (e.g. ``RobotModel.moving_bodies(joint)``); None: the whole robot.
+        ``fast``: mesh triangles whose edges all project shorter than a pixel are drawn as their corners'
+        pixels instead of being filled (at most a pixel fatter along the outline; the Panda's 134k triangles
+        at 320x180: 10x faster).
+        """
         s, cam = self.robot, self.intrinsics
         s.set_q(q)
         d = s.data
         T_camera_world = T_camera_base @ np.linalg.inv(s.T_world_base)
         canvas = np.zeros((cam.height, cam.width), np.uint8)
+        dot_layer = np.zeros_like(canvas) if fast else canvas
         polys: list[NDArray[np.int32]] = []
         for g in self.geoms:
-            if g not in self._local:
+            if g not in self._local or (bodies is not None and s.model.geom_bodyid[g] not in bodies):
                 continue
             local, faces = self._local[g]
             world = local @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g]
@@ -85,9 +97,19 @@ class RobotProjector:
                     cv2.fillConvexPoly(canvas, hull, 255, lineType=cv2.LINE_8, shift=_SUBPIXEL_BITS)
                 continue
             keep = ok[faces].all(axis=1)
+            if fast:
+                corners = px[faces[keep]]  # (n, 3, 2) px
+                edges = np.abs(corners - np.roll(corners, 1, axis=1)).max(axis=(1, 2))
+                tiny = edges < FAST_DOT_PX
+                dots = np.round(corners[tiny].reshape(-1, 2)).astype(np.int64)
+                inside = (dots[:, 0] >= 0) & (dots[:, 0] < cam.width) & (dots[:, 1] >= 0) & (dots[:, 1] < cam.height)
+                dot_layer[dots[inside, 1], dots[inside, 0]] = 255
+                keep[np.flatnonzero(keep)[tiny]] = False
             polys.extend(fixed[faces[keep]])
         if polys:
             cv2.fillPoly(canvas, polys, 255, lineType=cv2.LINE_8, shift=_SUBPIXEL_BITS)
+        if fast:  # corners up to FAST_DOT_PX apart: closing joins them without moving the outline out
+            canvas |= cv2.morphologyEx(dot_layer, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
         return canvas > 0
 
     def visible_fraction(self, q: FloatArray, T_camera_base: FloatArray) -> float:

@@ -1,6 +1,7 @@
 """arc_env.episodes: one benchmark episode runner and its resumable store."""
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -106,3 +107,38 @@ def test_each_realistic_episode_marks_its_robot_with_its_own_seed():
         finally:
             env.close()
     assert marks[0] != marks[1]
+
+
+#: Record fields that are wall time, not results: they differ between any two runs.
+TIMINGS = ("seconds", "planning")
+
+
+def _results(record):
+    return {k: v for k, v in json.loads(json.dumps(record)).items() if k not in TIMINGS}
+
+
+def test_ray_runs_give_the_records_of_one_process(stored, tmp_path):
+    """Two episodes as tasks on a local Ray cluster: the same figures as workers=1, stored and resumable."""
+    pytest.importorskip("ray", reason="Ray is optional (pip install 'arc-calib[ray]'); the CI installs it")
+    from arc_env.bench.episodes import RAY_LOCAL
+
+    _, record, _ = stored
+    other = EpisodeSpec("random", pose=2, seed=0, motions=3, width=480, height=270, oracle=True)
+    in_process = {SPEC: record, other: run_episodes([other])[other]}
+    store = EpisodeStore(tmp_path)
+    seen = []
+    on_ray = run_episodes([SPEC, other], store, workers=2, ray_address=RAY_LOCAL,
+                          on_record=lambda r, from_store: seen.append(from_store))
+    assert seen == [False, False]
+    for spec, expected in in_process.items():
+        assert _results(on_ray[spec]) == _results(expected)
+        assert _results(store.get(spec)) == _results(expected)
+    assert any(e is not None for e in on_ray[SPEC]["curve"])  # the comparison holds an estimate
+    again = run_episodes([SPEC, other], store, ray_address=RAY_LOCAL)  # all stored: no cluster is started
+    assert all(_results(again[s]) == _results(in_process[s]) for s in in_process)
+
+
+def test_ray_without_ray_installed_says_how_to_get_it(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray now raises ImportError
+    with pytest.raises(InvalidInputError, match=r"pip install 'arc-calib\[ray\]'"):
+        run_episodes([SPEC], ray_address="local")
