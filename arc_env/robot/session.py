@@ -702,9 +702,9 @@ def unusable_reason(run: CalibrationRun, criteria: UsableCriteria) -> str:
         return (f"none of the {len(run.diagnostics)} motions gave keypoint tracks (pruned, or nothing moved "
                 "in the images: is the robot in view?)")
     why = state_unusable_reason(run.calibrator.state, run.n_accepted, criteria)
-    if not why and run.focal_check is not None and not run.focal_check.fits:
+    if run.focal_check is not None and not run.focal_check.fits:  # said whatever else is wrong: it may be the cause
         where = f" ({run.recording.camera_source})" if run.recording is not None else ""
-        why = run.focal_check.message + where
+        why = "; ".join(filter(None, (why, run.focal_check.message + where)))
     return why
 
 
