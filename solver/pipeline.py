@@ -538,10 +538,7 @@ class Calibrator:
                                        prev.robust_sigma_px or prev.sigma_px, cfg.refinement, prev.time_offset_s)
         except (ArcCalibError, np.linalg.LinAlgError):
             return None
-        with np.errstate(invalid="ignore"):
-            std = np.sqrt(np.diag(refined.covariance))
-        if (not np.all(np.isfinite(std)) or np.any(std[:3] > cfg.max_std_rotation)
-                or np.any(std[3:] > cfg.max_std_translation)):
+        if not self._fixes_pose(refined.covariance):
             return None
         moved = max(float(np.sqrt(max(xi @ self._lin_information[j] @ xi, 0.0))) for j, xi in
                     zip(self._refined_live, (pose_difference(m.T_lin, refined.T_camera_base)
@@ -554,6 +551,13 @@ class Calibrator:
         self._refined_live.append(k)
         self._since_batch += 1
         return refined
+
+    def _fixes_pose(self, covariance: FloatArray) -> bool:
+        """Whether a pose covariance (6, 6) has every 1-sigma finite and within the ``max_std_*`` bounds."""
+        with np.errstate(invalid="ignore"):  # a negative variance gives NaN: not finite
+            std = np.sqrt(np.diag(covariance))
+        return bool(np.all(np.isfinite(std)) and np.all(std[:3] <= self.config.max_std_rotation)
+                    and np.all(std[3:] <= self.config.max_std_translation))
 
     def _refine_checked(self, tracks: TrackSet, start: FloatArray, points_init: FloatArray | None
                         ) -> tuple[RefinementResult | None, str, bool]:
@@ -571,10 +575,9 @@ class Calibrator:
         except np.linalg.LinAlgError:  # numpy's words ("leading minor not positive definite") mean nothing here
             return None, ("refinement failed: its equations are singular (tracks or motions that leave a point "
                           "or the pose free)"), False
-        with np.errstate(invalid="ignore"):  # a negative variance is caught just below
-            std = np.sqrt(np.diag(refined.covariance))
-        if (not np.all(np.isfinite(std)) or np.any(std[:3] > cfg.max_std_rotation)
-                or np.any(std[3:] > cfg.max_std_translation)):
+        if not self._fixes_pose(refined.covariance):
+            with np.errstate(invalid="ignore"):
+                std = np.sqrt(np.diag(refined.covariance))
             return None, (f"the motions do not fix the pose: 1-sigma uncertainty "
                           f"{np.round(std, 4).tolist()} (rad, m) is too large"), True
         return refined, "", True

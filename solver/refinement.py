@@ -783,21 +783,14 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
         raise InvalidInputError("estimate_time_offset is on but not every track carries the joint's velocity "
                                 "(KeypointTrack.velocity)")
     bound = config.time_offset_bound_s
-    points, ok = triangulate_tracks(tracks, T_init)
-    if points_init is not None:
-        points = np.where(np.isfinite(points_init).all(axis=1)[:, None], points_init, points)
-    keep = ok.copy()
-    if keep.sum() < 2:
-        raise InsufficientMotionsError("fewer than two tracks could be triangulated from the pose")
+    points, keep = start_points(tracks, T_init, points_init)
     sub = _subset(tracks, keep)
     T, pts, problem, x, sol = _solve(sub, T_init, points[keep], "cauchy", config.cauchy_scale_px,
                                      config.max_nfev, ftol=config.robust_ftol,
                                      time_offset=(0.0, 1.0 / bound) if estimate else None, backend=config.backend)
     res = sol.fun[:2 * sub.uv.shape[0]].reshape(-1, 2)
-    track_rms = np.sqrt(np.bincount(sub.track, weights=np.sum(res**2, axis=1), minlength=sub.n_tracks)
-                        / np.maximum(np.bincount(sub.track, minlength=sub.n_tracks), 1) / 2)
-    sigma = 1.4826 * float(np.median(np.abs(res)))
-    good = track_rms <= max(config.outlier_px, config.outlier_sigmas * sigma)
+    sigma = robust_sigma(res)
+    good = agreeing_tracks(sub, res, sigma, config)
     if good.sum() < 2:
         raise InsufficientMotionsError("fewer than two tracks agree with the refined pose")
     sub2 = _subset(sub, good)
@@ -810,11 +803,7 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     summaries = _motion_summaries(problem, x, fun)
     cov, sigma_fit = summaries_covariance(summaries, problem.prior_row(), motion_clusters=config.motion_clusters)
     cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
-    inliers = np.zeros(tracks.n_tracks, dtype=bool)
-    kept_idx = np.flatnonzero(keep)[good]
-    inliers[kept_idx] = True
-    all_points = np.full((tracks.n_tracks, 3), np.nan)
-    all_points[kept_idx] = pts2
+    inliers, all_points = kept_points(tracks.n_tracks, keep, good, pts2)
     return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))),
                             sigma_fit, offset, offset_std, correlation, summaries, sigma)
 
@@ -853,9 +842,7 @@ def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionS
         raise InvalidInputError("the earlier motions estimate the time offset: the new tracks need joint velocities "
                                 "and time_offset_s the current estimate")
     bound = config.time_offset_bound_s
-    points, keep = triangulate_tracks(_turned_by_offset(tracks, time_offset_s) if estimate else tracks, T0)
-    if keep.sum() < 2:
-        raise InsufficientMotionsError("fewer than two new tracks could be triangulated from the pose")
+    points, keep = start_points(_turned_by_offset(tracks, time_offset_s) if estimate else tracks, T0, what="new tracks")
     sub = _subset(tracks, keep)
     # The time offset is the problem's 7th parameter itself (not a change from an anchor): the prior's s0 is 0.
     prior = summaries_prior(earlier, T0, 0.0 if estimate else None)
@@ -865,11 +852,9 @@ def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionS
                                      prior=prior)
     res = sol.fun[:2 * sub.uv.shape[0]].reshape(-1, 2)
     n_old = sum(m.n_residuals for m in earlier) if n_earlier_residuals is None else n_earlier_residuals
-    sigma_new = 1.4826 * float(np.median(np.abs(res)))
+    sigma_new = robust_sigma(res)
     sigma = float(np.sqrt((n_old * sigma_px**2 + res.size * sigma_new**2) / (n_old + res.size)))
-    track_rms = np.sqrt(np.bincount(sub.track, weights=np.sum(res**2, axis=1), minlength=sub.n_tracks)
-                        / np.maximum(np.bincount(sub.track, minlength=sub.n_tracks), 1) / 2)
-    good = track_rms <= max(config.outlier_px, config.outlier_sigmas * sigma)
+    good = agreeing_tracks(sub, res, sigma, config)
     if good.sum() < 1:
         raise InsufficientMotionsError("no new track agrees with the refined pose")
     sub2 = _subset(sub, good)
@@ -887,13 +872,9 @@ def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionS
     cov, sigma_fit = summaries_covariance(summaries, problem.prior_row(), T, float(x[6]) if estimate else None,
                                           config.motion_clusters)
     cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
-    inliers = np.zeros(tracks.n_tracks, dtype=bool)
-    kept_idx = np.flatnonzero(keep)[good]
-    inliers[kept_idx] = True
-    all_points = np.full((tracks.n_tracks, 3), np.nan)
-    all_points[kept_idx] = pts2
-    return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))), sigma_fit,
-                            offset, offset_std, correlation, summaries, sigma)
+    inliers, all_points = kept_points(tracks.n_tracks, keep, good, pts2)
+    return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))),
+                            sigma_fit, offset, offset_std, correlation, summaries, sigma)
 
 
 def screen_start(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig, max_nfev: int,
@@ -928,6 +909,55 @@ def screen_start(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig,
     n_left_out = int(np.sum(~ok[tracks.track]))
     total = float(np.sum(np.minimum(sol.fun**2, cap_px**2))) + 2 * n_left_out * cap_px**2
     return T, total / (2 * tracks.track.size)
+
+
+def start_points(tracks: TrackSet, T_init: FloatArray, points_init: FloatArray | None = None,
+                 what: str = "tracks") -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Where an adjustment's points start: (T, 3) m base-frame points and (T,) bool, the tracks it can use.
+
+    Triangulated from ``T_init`` (``triangulate_tracks``); rows of ``points_init`` (T, 3) that are finite
+    replace them (a warm start).
+
+    Raises:
+        InsufficientMotionsError: fewer than two of the ``what`` can be triangulated.
+    """
+    points, keep = triangulate_tracks(tracks, T_init)
+    if points_init is not None:
+        points = np.where(np.isfinite(points_init).all(axis=1)[:, None], points_init, points)
+    if keep.sum() < 2:
+        raise InsufficientMotionsError(f"fewer than two {what} could be triangulated from the pose")
+    return points, keep
+
+
+def robust_sigma(res: FloatArray) -> float:
+    """px: the noise per coordinate of residuals (P, 2) px, from their median absolute value (1.4826 MAD)."""
+    return 1.4826 * float(np.median(np.abs(res)))
+
+
+def agreeing_tracks(tracks: TrackSet, res: FloatArray, sigma: float, config: RefinementConfig) -> NDArray[np.bool_]:
+    """(T,) bool: the tracks whose RMS residual (per coordinate) is within the outlier bound.
+
+    ``res`` (P, 2) px are the robust pass's residuals of ``tracks``; the bound is the larger of
+    ``config.outlier_px`` and ``config.outlier_sigmas`` times ``sigma`` px.
+    """
+    counts = np.maximum(np.bincount(tracks.track, minlength=tracks.n_tracks), 1)
+    track_rms = np.sqrt(np.bincount(tracks.track, weights=np.sum(res**2, axis=1), minlength=tracks.n_tracks)
+                        / counts / 2)
+    return track_rms <= max(config.outlier_px, config.outlier_sigmas * sigma)
+
+
+def kept_points(n_tracks: int, keep: NDArray[np.bool_], good: NDArray[np.bool_], points: FloatArray
+                ) -> tuple[NDArray[np.bool_], FloatArray]:
+    """The inliers (T,) bool and points (T, 3) m (NaN elsewhere) of all T tracks.
+
+    From ``keep`` (T,) the tracks triangulated, ``good`` the kept ones among those, and their ``points``.
+    """
+    inliers = np.zeros(n_tracks, dtype=bool)
+    kept_idx = np.flatnonzero(keep)[good]
+    inliers[kept_idx] = True
+    all_points = np.full((n_tracks, 3), np.nan)
+    all_points[kept_idx] = points
+    return inliers, all_points
 
 
 def _track_scale(tracks: TrackSet, res: FloatArray, good: NDArray[np.bool_], sigma: float,

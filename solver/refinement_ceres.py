@@ -40,8 +40,11 @@ from solver.refinement import (
     _pose_covariances,
     _Problem,
     _subset,
+    agreeing_tracks,
     conservative_covariance,
-    triangulate_tracks,
+    kept_points,
+    robust_sigma,
+    start_points,
 )
 
 #: COLMAP ids of the rig, its reference camera (no images) and the observing camera.
@@ -243,21 +246,13 @@ def refine_ceres(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig 
     if config.estimate_time_offset:
         raise InvalidInputError("the Ceres backend does not estimate the time offset: set "
                                 "RefinementConfig.estimate_time_offset to False or None, or use refine()")
-    points, ok = triangulate_tracks(tracks, T_init)
-    if points_init is not None:
-        points = np.where(np.isfinite(points_init).all(axis=1)[:, None], points_init, points)
-    keep = ok.copy()
-    if keep.sum() < 2:
-        raise InsufficientMotionsError("fewer than two tracks could be triangulated from the pose")
+    points, keep = start_points(tracks, T_init, points_init)
     sub = _subset(tracks, keep)
     model = _RigModel(sub, T_init, points[keep])
     model.solve("cauchy", config.cauchy_scale_px, config.max_nfev, config.robust_ftol, options)
     T, pts = model.pose(), model.points()
     res = _numpy_residuals(sub, T, pts)[2].reshape(-1, 2)
-    track_rms = np.sqrt(np.bincount(sub.track, weights=np.sum(res**2, axis=1), minlength=sub.n_tracks)
-                        / np.maximum(np.bincount(sub.track, minlength=sub.n_tracks), 1) / 2)
-    sigma = 1.4826 * float(np.median(np.abs(res)))
-    good = track_rms <= max(config.outlier_px, config.outlier_sigmas * sigma)
+    good = agreeing_tracks(sub, res, robust_sigma(res), config)
     if good.sum() < 2:
         raise InsufficientMotionsError("fewer than two tracks agree with the refined pose")
     sub2 = _subset(sub, good)
@@ -268,9 +263,5 @@ def refine_ceres(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig 
     m, n = fun.size, x.size
     sigma2 = float(np.sum(fun**2) / max(m - n, 1))
     cov = conservative_covariance(*_pose_covariances(problem, x, sigma2, fun))
-    inliers = np.zeros(tracks.n_tracks, dtype=bool)
-    kept_idx = np.flatnonzero(keep)[good]
-    inliers[kept_idx] = True
-    all_points = np.full((tracks.n_tracks, 3), np.nan)
-    all_points[kept_idx] = pts2
+    inliers, all_points = kept_points(tracks.n_tracks, keep, good, pts2)
     return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(fun**2))), float(np.sqrt(sigma2)))
