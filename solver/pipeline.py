@@ -357,6 +357,7 @@ class Calibrator:
         self._inlier_counts: dict[int, int] = {}  # tracks the bundle adjustment kept, per motion
         self._lin_information: dict[int, FloatArray] = {}  # per motion: inverse pose covariance where linearized
         self._since_batch = 0  # increments since every motion was last solved
+        self._from_family = False  # the refined pose descends from a family start no linear start has beaten
         self.relinearized = 0  # updates that solved every motion (for benchmarks)
         self.state = CalibrationState(None, "none", None, None, None, None, False, 0, 0, None,
                                       "no motion yet")
@@ -439,7 +440,14 @@ class Calibrator:
             start = linear.T_camera_base
         tracks: TrackSet | None = None
         ran = False  # a bundle adjustment from the previous or linear pose converged (its covariance may be too wide)
-        if cfg.refine and start is not None:
+        if cfg.refine and start is not None and self._from_family and linear is not None:
+            # A family start's chain against the linear start, on every motion: the better fit goes on.
+            tracks = self._track_set(live)
+            refined, why, ran = self._rival_linear(tracks, live, linear.T_camera_base)
+            if refined is None:
+                message = why or message
+            start_kind = "previous" if self._from_family else "linear"
+        elif cfg.refine and start is not None:
             refined = self._increment(live) if self._refined is not None else None
             if refined is None:
                 tracks = self._track_set(live)
@@ -461,6 +469,7 @@ class Calibrator:
                 message = f"{message}; {why}" if message else why
             else:
                 self._store_batch(live, tracks, refined)
+                self._from_family = True
         if refined is not None:
             self._refined = refined
         t_refined = time.perf_counter()
@@ -581,6 +590,30 @@ class Calibrator:
             return None, (f"the motions do not fix the pose: 1-sigma uncertainty "
                           f"{np.round(std, 4).tolist()} (rad, m) is too large"), True
         return refined, "", True
+
+    def _rival_linear(self, tracks: TrackSet, live: list[int], linear: FloatArray
+                      ) -> tuple[RefinementResult | None, str, bool]:
+        """The adjustment of every motion from the family chain's pose and from the linear pose; the better fit.
+
+        A family start is rough (one ray's worth of members, scored on a subsample) and every later update
+        starts from the previous pose, so the chain can stay in a worse minimum; once the motions' axes give
+        a linear pose, both starts are adjusted on every motion and the one that explains the tracks better
+        (``_fit_score``) goes on. When the linear start wins, the chain is an ordinary one from then on.
+
+        Returns:
+            (the kept result, "", True), or (None, why, whether an adjustment ran) when neither passes its checks.
+        """
+        assert self._refined is not None
+        warm = self._warm_points(live)
+        chain, why, ran = self._refine_checked(tracks, self._refined.T_camera_base, warm)
+        rival, why_rival, ran_rival = self._refine_checked(tracks, linear, None)
+        if rival is not None and (chain is None or _fit_score(tracks, rival, FAMILY_CAP_PX)
+                                  < _fit_score(tracks, chain, FAMILY_CAP_PX)):
+            chain, self._from_family = rival, False
+        if chain is None:
+            return None, why or why_rival, ran or ran_rival
+        self._store_batch(live, tracks, chain)
+        return chain, "", True
 
     def _family_start(self, live: list[int], with_axis: list[int], tracks: TrackSet
                       ) -> tuple[RefinementResult | None, str]:
