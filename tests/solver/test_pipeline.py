@@ -210,6 +210,37 @@ def test_two_axes_start_the_bundle_adjustment_from_the_pose_family(monkeypatch):
     assert rot < NOISY_ROT and trans < NOISY_TRANS
 
 
+def test_a_family_chain_is_checked_against_the_linear_start_once_there_is_one(monkeypatch):
+    """A chain begun from the pose family meets a linear pose: both starts are adjusted on every motion and
+    the better fit goes on. The chain is turned half a turn first (the tracks behind its camera): the linear
+    start must take over, and the chain's comparisons end."""
+    _stage_one_for(monkeypatch, 2)
+    rng = np.random.default_rng(2)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=20),
+                           rng)
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(rigid_axis=None, family_start=True))
+    observations = [scene.random_motion(rng).observation for _ in range(11)]
+    for obs in observations[:6]:
+        cal.add_motion(obs)
+    assert cal.state.stage == "refined" and cal.state.T_linear is None and cal._from_family
+    # a chain stuck elsewhere: its pose (the next update's start) turned about the camera's y axis
+    wrong = cal._refined.T_camera_base.copy()
+    wrong[:3] = np.hstack([Rotation.from_rotvec([0.0, np.pi, 0.0]).as_matrix(), [[0.0], [0.0], [0.0]]]) @ wrong
+    cal._refined = replace(cal._refined, T_camera_base=wrong)
+    monkeypatch.undo()  # stage one gives axes again: the next motions bring a linear pose
+    for obs in observations[6:]:
+        cal.add_motion(obs)
+        if cal.state.T_linear is not None:
+            break
+    s = cal.state
+    assert s.T_linear is not None and s.stage == "refined" and s.start == "linear" and not cal._from_family
+    rot, trans = pose_errors(s.T_camera_base, T)
+    assert rot < NOISY_ROT and trans < 3 * NOISY_TRANS  # 7 motions, 20 tracks each, 10 % outliers
+    xi = pose_difference(s.T_camera_base, T)
+    assert xi @ np.linalg.solve(s.covariance, xi) < CHI2_6_999
+
+
 def test_one_axis_gives_no_pose_and_says_why(monkeypatch):
     _stage_one_for(monkeypatch, 1)
     rng = np.random.default_rng(1)
