@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import os
+import threading
 import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator, Sequence
@@ -284,7 +285,8 @@ class RobotModel:
 
     Built by ``RobotModel.load`` (the robot alone) or by the simulator around its scene's model.
     ``data`` holds the arm's current state (``set_q``); ``axis_and_point`` uses a private state of its
-    own, so it never disturbs ``data``.
+    own, so it never disturbs ``data``, behind a lock, so threads may call it at once (an overlapped
+    session's worker calibrates while the main thread plans and checks motions).
 
     Args:
         model: a compiled model that contains the robot.
@@ -323,6 +325,7 @@ class RobotModel:
         self.home: FloatArray = np.clip(home, self.lower, self.upper)
         self.data = data if data is not None else mujoco.MjData(m)
         self._kin = mujoco.MjData(m)
+        self._kin_lock = threading.Lock()
         mujoco.mj_kinematics(m, self._kin)
         self.T_world_base = transform_from_rt(self._kin.xmat[self.base_body].reshape(3, 3).copy(),
                                               self._kin.xpos[self.base_body].copy())
@@ -439,12 +442,14 @@ class RobotModel:
         q = self.check_q(q)
         if not 0 <= joint < self.n_joints:
             raise InvalidInputError(f"joint must be in [0, {self.n_joints}), got {joint}")
-        self._kin.qpos[self.qpos_adr] = q
-        mujoco.mj_kinematics(self.model, self._kin)
         j = self.arm_joints[joint]
+        with self._kin_lock:
+            self._kin.qpos[self.qpos_adr] = q
+            mujoco.mj_kinematics(self.model, self._kin)
+            axis_world, anchor_world = self._kin.xaxis[j].copy(), self._kin.xanchor[j].copy()
         R_world_base, p_world_base = self.T_world_base[:3, :3], self.T_world_base[:3, 3]
-        axis = R_world_base.T @ self._kin.xaxis[j]
-        point = R_world_base.T @ (self._kin.xanchor[j] - p_world_base)
+        axis = R_world_base.T @ axis_world
+        point = R_world_base.T @ (anchor_world - p_world_base)
         return axis / np.linalg.norm(axis), point
 
     def moving_bodies(self, joint: int) -> list[int]:

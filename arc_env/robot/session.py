@@ -17,12 +17,19 @@ A recording's result is *usable* -- written, exit code 0 -- only when all of the
   ``max_std_mm`` (the convergence monitor's thresholds are tighter, so a converged estimate qualifies).
 
 Otherwise nothing is written: never a pose from too little evidence.
+
+With ``SessionConfig.overlap`` the robot does not wait for the computer: ``step`` executes its motion on
+the calling thread while one worker thread tracks the previous motion's frames and adds it to the
+calibrator, and returns that previous motion's result (lagged by one; the first such step returns a
+``pending`` result, ``flush`` processes the last motion). The calibrator still takes every motion in order
+and completely before ``step`` returns, so the planner, which runs between steps, never meets a worker.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from typing import Protocol
 
@@ -81,6 +88,9 @@ class SessionConfig:
         calibrator: solver settings (every track and frame goes to the bundle adjustment by default).
         tracker: tracking settings.
         transit: how the arm gets from where it is to Q (straight if free, else OMPL RRTConnect).
+        overlap: execute each motion while a worker thread tracks and calibrates the previous one;
+            ``step`` then returns the previous motion's result (see ``CalibrationSession.step``). Off
+            (default): each motion is executed, tracked and calibrated before ``step`` returns.
     """
 
     min_delta: float = 0.2
@@ -89,6 +99,7 @@ class SessionConfig:
     calibrator: CalibratorConfig = field(default_factory=CalibratorConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     transit: TransitConfig = field(default_factory=TransitConfig)
+    overlap: bool = False
 
     def __post_init__(self) -> None:
         if not 0 < self.min_delta < self.max_delta:
@@ -200,14 +211,24 @@ MotionObserver = Callable[[SeenMotion], None]
 
 @dataclass(frozen=True)
 class StepResult:
-    """One ``CalibrationSession.step``.
+    """One ``CalibrationSession.step`` (or ``flush``): the motion the calibrator took, or why there is none.
+
+    Without overlap it describes the motion the step executed. With ``SessionConfig.overlap`` it describes
+    the motion the step *processed* (tracked and gave to the calibrator): the one executed by the previous
+    step, at position ``index``; a step that executed a motion but had none to process (the first) is
+    ``pending``: ``refused`` is "", ``motion`` and ``transit`` are None.
 
     Attributes:
         refused: "" or why the motion was not executed (the robot did not move).
-        transit: the executed transit to Q (None when refused).
-        motion: the calibrator's verdict (None when refused).
+        transit: the transit to Q of the motion described (None when refused or pending).
+        motion: the calibrator's verdict (None when refused or pending).
         n_frames: frames of the sweep.
-        seconds: wall time: "transit", "render" (or the robot's sweep), "tracking", "solver".
+        seconds: wall time: "transit", "render" (or the robot's sweep), "tracking", "solver"; with overlap
+            also "waited": how long the step stayed blocked on the worker after its own execution ended
+            (time the robot stood idle; for ``flush``, all of its processing).
+        pending: the step executed a motion whose result a later ``step`` or ``flush`` returns (overlap only).
+        index: the described motion's position among the session's executed motions (None when refused
+            or pending).
     """
 
     refused: str
@@ -215,6 +236,18 @@ class StepResult:
     motion: MotionOutcome | None = None
     n_frames: int = 0
     seconds: dict[str, float] = field(default_factory=dict)
+    pending: bool = False
+    index: int | None = None
+
+
+@dataclass(frozen=True)
+class _Executed:
+    """A motion executed by an overlapped ``step`` and not yet tracked or given to the calibrator."""
+
+    index: int
+    joint: int
+    transit: TransitPath
+    acquired: Acquisition
 
 
 class CalibrationSession:
@@ -231,7 +264,7 @@ class CalibrationSession:
         calibrator: the calibrator (None before ``reset``).
         executed: the executed motions of this session, in order: (Q (n,) rad, J, delta rad).
         last_transit: the last executed transit (None before the first motion).
-        n_motions: executed motions; ``n_refused``: refused ones.
+        n_motions: executed motions (with overlap, the pending one included); ``n_refused``: refused ones.
         np_random: the generator the session was reset with.
         observer: called with a ``SeenMotion`` after each executed motion (None: nothing is called).
     """
@@ -252,6 +285,7 @@ class CalibrationSession:
         self.np_random = np.random.default_rng()
         self._checker: CollisionChecker | None = None
         self._transit_seed = 0
+        self._pending: _Executed | None = None
 
     # -- the planning context ------------------------------------------------------------------
     @property
@@ -272,13 +306,19 @@ class CalibrationSession:
                                              qpos_ref=self.robot.data.qpos.copy())
         return self._checker
 
+    @property
+    def pending(self) -> bool:
+        """An overlapped ``step`` executed a motion the calibrator has not taken yet (``flush`` takes it)."""
+        return self._pending is not None
+
     def reset(self, rng: np.random.Generator | None = None) -> None:
-        """Start over: the arm at home, an empty calibrator, no motions.
+        """Start over: the arm at home, an empty calibrator, no motions (a pending motion is dropped).
 
         Args:
             rng: draws the calibrator's seed and the transit planner's (in that order); None keeps the
                 calibrator config's own seed.
         """
+        self._pending = None  # no worker outlives a step: only its unprocessed motion is left to drop
         self.robot.set_q(self.robot.home)
         self._checker = None
         config = self.config.calibrator
@@ -307,6 +347,15 @@ class CalibrationSession:
     def step(self, q: FloatArray, joint: int, delta: float) -> StepResult:
         """Check the motion, plan the transit to Q, execute it, track its frames and add it to the calibrator.
 
+        With ``SessionConfig.overlap``, once the transit is planned the motion is executed on the calling
+        thread while a worker thread tracks the previous step's motion and adds it to the calibrator; the
+        step waits for the worker and returns *that* motion's result (``StepResult.index``), after handing
+        it to the ``observer`` on the calling thread. The first step after ``reset`` (or ``flush``) has
+        nothing to process and returns a ``pending`` result; ``flush`` processes the last motion. A refused
+        motion leaves the pending one as it is. If the execution raises, the worker's motion is finished
+        (in the calibrator, given to the observer) before the exception propagates, without a result.
+        Whatever the worker raises propagates from this step, as the same exception.
+
         Raises:
             InvalidInputError: the session has no executor, or the executor returned malformed data.
         """
@@ -326,6 +375,8 @@ class CalibrationSession:
             return self.refuse(reason)
         self.last_transit = transit
         self.executed.append((q.copy(), joint, delta))
+        if self.config.overlap:
+            return self._step_overlapped(q, joint, delta, transit)
         acquired = self.executor.execute(q, joint, delta)
         seconds = dict(acquired.seconds)
         tracks = acquired.tracks
@@ -339,7 +390,81 @@ class CalibrationSession:
         outcome = self._observe_executed(acquired.q_start, joint, acquired.deltas, tracks)
         seconds["solver"] = time.perf_counter() - t0
         self.notify(self.n_motions - 1, acquired.q_start, joint, acquired.deltas, acquired.frames, tracks, outcome)
-        return StepResult("", transit, outcome, len(acquired.deltas), seconds)
+        return StepResult("", transit, outcome, len(acquired.deltas), seconds, index=self.n_motions - 1)
+
+    def flush(self) -> StepResult | None:
+        """Track the pending motion of an overlapped ``step`` and add it to the calibrator, on the calling thread.
+
+        Returns its result (``seconds["waited"]`` is all of the processing: the robot waits for it), or None
+        when no motion is pending. Whatever the processing raises propagates (the motion is dropped).
+        """
+        executed = self._pending
+        if executed is None:
+            return None
+        self._pending = None
+        t0 = time.perf_counter()
+        processed = self._process(executed)
+        return self._processed_result(executed, *processed, waited=time.perf_counter() - t0)
+
+    def _step_overlapped(self, q: FloatArray, joint: int, delta: float, transit: TransitPath) -> StepResult:
+        """``step``'s execution with overlap: execute this motion while a worker processes the pending one."""
+        assert self.executor is not None
+        previous, self._pending = self._pending, None
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="arc-calib-process") as worker:
+            future = worker.submit(self._process, previous) if previous is not None else None
+            try:
+                acquired = self.executor.execute(q, joint, delta)
+            except BaseException as exc:
+                if previous is not None and future is not None:
+                    self._finish_after_failure(previous, future, exc)
+                raise
+            self.robot.set_q(acquired.q_end)
+            self._pending = _Executed(self.n_motions, joint, transit, acquired)
+            self.n_motions += 1
+            if previous is None or future is None:
+                return StepResult("", seconds={"waited": 0.0}, pending=True)
+            t0 = time.perf_counter()
+            processed = future.result()  # the worker's exception, if any, is raised here
+            waited = time.perf_counter() - t0
+        return self._processed_result(previous, *processed, waited=waited)
+
+    def _finish_after_failure(self, previous: _Executed, future: Future[tuple[list[KeypointTrack], MotionOutcome,
+                                                                              dict[str, float]]],
+                              exc: BaseException) -> None:
+        """The execution raised ``exc``: let the worker finish its motion (the observer sees it), or note its error."""
+        wait([future])
+        failed = future.exception()
+        if failed is None:
+            self._processed_result(previous, *future.result(), waited=0.0)
+        else:
+            exc.add_note(f"meanwhile processing motion {previous.index} raised {type(failed).__name__}: {failed}")
+
+    def _process(self, executed: _Executed) -> tuple[list[KeypointTrack], MotionOutcome, dict[str, float]]:
+        """Track an executed motion's frames and give it to the calibrator (the worker's part; nothing else).
+
+        Touches only the calibrator (and the robot model's locked kinematics): no counters, no observer.
+        """
+        acquired = executed.acquired
+        seconds: dict[str, float] = {}
+        tracks = acquired.tracks
+        if tracks is None:
+            t0 = time.perf_counter()
+            tracks = self.track(acquired.frames or [], acquired.deltas, acquired.velocities)
+            seconds["tracking"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        outcome = replace(self.observe(acquired.q_start, executed.joint, tracks),
+                          n_full_tracks=full_tracks(tracks, acquired.deltas))
+        seconds["solver"] = time.perf_counter() - t0
+        return list(tracks), outcome, seconds
+
+    def _processed_result(self, executed: _Executed, tracks: list[KeypointTrack], outcome: MotionOutcome,
+                          parts: dict[str, float], waited: float) -> StepResult:
+        """Hand a processed motion to the observer (calling thread) and describe it as a ``StepResult``."""
+        acquired = executed.acquired
+        seconds = {**acquired.seconds, **parts, "transit": executed.transit.seconds, "waited": waited}
+        self.notify(executed.index, acquired.q_start, executed.joint, acquired.deltas, acquired.frames, tracks,
+                    outcome)
+        return StepResult("", executed.transit, outcome, len(acquired.deltas), seconds, index=executed.index)
 
     def notify(self, index: int, q_start: FloatArray, joint: int, deltas: FloatArray,
                frames: Sequence[ImageArray] | None, tracks: Sequence[KeypointTrack], outcome: MotionOutcome,
@@ -386,6 +511,8 @@ class CalibrationSession:
         """
         if self.calibrator is None:
             raise InvalidInputError("call reset() before replay()")
+        if self._pending is not None:
+            raise InvalidInputError("an overlapped step's motion is pending: flush() it before replay()")
         q_start = self.robot.check_q(q_start)
         self.executed.append((q_start.copy(), joint, float(deltas[-1])))
         self.robot.set_swept(q_start, joint, float(deltas[-1]))
