@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from arc_env.robot.session import Acquisition, CalibrationSession, SessionConfig
+from arc_env.robot.session import Acquisition, CalibrationSession, SessionConfig, StepResult
 from arc_env.robot.tracking import TrackerConfig
 from arc_env.sim.scene import Scene, SceneConfig, SceneRenderer
 from planners.context import observation_from_estimate
@@ -61,6 +61,9 @@ class EnvConfig:
         calibrator: solver settings (default: every track and frame goes to the bundle adjustment).
         tracker: tracking settings.
         transit: how the arm gets from where it is to Q (straight if free, else OMPL RRTConnect).
+        overlap: render each motion while a worker thread tracks and calibrates the previous one
+            (``SessionConfig.overlap``); ``step`` then reports the previous motion (see "Overlap" in
+            ``ArcCalibEnv``'s docstring). Off (default): each step reports its own motion.
     """
 
     scene: SceneConfig = field(default_factory=SceneConfig)
@@ -85,6 +88,7 @@ class EnvConfig:
     calibrator: CalibratorConfig = field(default_factory=CalibratorConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     transit: TransitConfig = field(default_factory=TransitConfig)
+    overlap: bool = False
 
     def __post_init__(self) -> None:
         if self.max_motions < 1 or self.max_refusals < 1:
@@ -104,7 +108,7 @@ class EnvConfig:
         """The calibration session's part of these settings."""
         return SessionConfig(min_delta=self.min_delta, max_delta=self.max_delta,
                              collision_step_m=self.collision_step_m, calibrator=self.calibrator,
-                             tracker=self.tracker, transit=self.transit)
+                             tracker=self.tracker, transit=self.transit, overlap=self.overlap)
 
 
 class ArcCalibEnv(gym.Env):
@@ -185,12 +189,40 @@ class ArcCalibEnv(gym.Env):
     Wall times are in ``env.last_seconds`` (transit, render, tracking, solver), not in ``info``,
     which same-seed episodes reproduce exactly.
 
+    ## Overlap
+    With ``EnvConfig(overlap=True)`` the robot never waits for the computer: each step renders its
+    motion while a worker thread tracks the previous step's motion and adds it to the calibrator
+    (``CalibrationSession.step``). The step returns once the calibrator has taken that previous motion,
+    completely and in order, so observations are deterministic for a seed; they lag one motion behind:
+
+    | step returns             | overlap off               | overlap on                                    |
+    |--------------------------|---------------------------|-----------------------------------------------|
+    | observation              | after this step's motion  | after the previous executed motion            |
+    | ``info["motion"]``       | this motion's             | the previous one's; None on the first         |
+    |                          |                           | executed step (nothing processed yet)         |
+    | ``info["motion_index"]`` | (absent)                  | which executed motion (0-based) ``motion``,   |
+    |                          |                           | ``n_frames`` and ``transit_*`` describe; None |
+    | ``n_frames``,            | this motion's             | the processed motion's (absent while          |
+    | ``transit_*``            |                           | ``motion`` is None)                           |
+    | reward                   | e_before - e_after - cost | the same, e after what the step processed     |
+    | ``env.last_seconds``     | this motion's parts       | the processed motion's parts, plus "waited":  |
+    |                          |                           | s the step stayed blocked on the worker after |
+    |                          |                           | its own rendering (the robot idle), and on    |
+    |                          |                           | the final step "flush": s spent on ``flush``  |
+
+    When the episode ends (either flag, judged on the processed motions), the env first processes the
+    last executed motion (``CalibrationSession.flush``): the final observation, ``info`` and the flags
+    include every executed motion, and ``info["flushed_motion"]`` (``motion``'s keys plus ``index``,
+    ``n_frames``) describes it. Should that motion undo a convergence, the episode goes on. A refused
+    action leaves the pending motion pending (unless refusals truncate the episode). The sum of rewards
+    over an episode still telescopes to e_0 - e_final minus the costs.
+
     ## Arguments
     ``gymnasium.make("ArcCalib-v0", config=EnvConfig(...), render_mode="rgb_array")``; see
     ``EnvConfig`` for every setting (robot file, resolution, oracle keypoints, budgets).
 
     ## Version History
-    * v0: first version.
+    * v0: first version; later the ``overlap`` option (default off).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -258,6 +290,8 @@ class ArcCalibEnv(gym.Env):
             result = self.session.refuse(str(exc))
         else:
             result = self.session.step(q, joint, delta)
+        if c.overlap:
+            return self._overlapped_step(result)
         if result.refused:
             info = self._info(result.refused)
             return (self._observation(), -c.refusal_penalty, False, self.session.n_refused >= c.max_refusals, info)
@@ -273,6 +307,42 @@ class ArcCalibEnv(gym.Env):
         terminated = bool(state.converged) and c.terminate_on_convergence
         truncated = self.session.n_motions >= c.max_motions and not terminated
         return self._observation(), float(reward), terminated, truncated, info
+
+    def _overlapped_step(self, result: StepResult) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
+        """``step``'s outcome with overlap: ``result`` describes the processed motion (or is pending or refused)."""
+        c = self.config
+        session = self.session
+        assert session.calibrator is not None
+        if not result.refused:
+            self.last_seconds = result.seconds
+        flushed = None
+        if session.pending and self._ends(session.calibrator.state):
+            flushed = session.flush()  # the episode ends: the final observation holds every executed motion
+        state = session.calibrator.state
+        score = self._score(state)
+        cost = c.refusal_penalty if result.refused else c.step_cost
+        reward = self._error_score - score - cost
+        self._error_score = score
+        info = self._info(result.refused)
+        if not result.refused:
+            info.update(motion=None, motion_index=None)
+        if result.motion is not None and result.transit is not None:
+            info.update(motion=result.motion.as_info(), motion_index=result.index, n_frames=result.n_frames,
+                        transit_rad=result.transit.length_rad, transit_planned=result.transit.planned)
+        if flushed is not None:
+            assert flushed.motion is not None
+            info["flushed_motion"] = {**flushed.motion.as_info(), "index": flushed.index,
+                                      "n_frames": flushed.n_frames}
+            self.last_seconds = {**self.last_seconds, "flush": flushed.seconds["waited"]}
+        terminated = bool(state.converged) and c.terminate_on_convergence
+        truncated = (session.n_motions >= c.max_motions or session.n_refused >= c.max_refusals) and not terminated
+        return self._observation(), float(reward), terminated, truncated, info
+
+    def _ends(self, state: CalibrationState) -> bool:
+        """The episode ends with this state (converged, or a budget spent)."""
+        c = self.config
+        return ((bool(state.converged) and c.terminate_on_convergence) or self.session.n_motions >= c.max_motions
+                or self.session.n_refused >= c.max_refusals)
 
     def render(self) -> ImageArray | None:
         """The camera's current image, (H, W, 3) uint8 (``render_mode="rgb_array"``)."""

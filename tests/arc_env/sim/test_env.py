@@ -1,5 +1,7 @@
 """ArcCalib-v0: the Gymnasium contract, refusals, determinism and a short calibration episode."""
 
+from dataclasses import replace
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -229,3 +231,111 @@ def test_a_late_joint_log_gives_the_logs_deltas_and_the_offset_is_estimated():
         assert exact.logged_deltas(np.linspace(0, 0.5, 5))[1] is None
     finally:
         exact.close()
+
+
+# -- overlap: each step renders its motion while a worker tracks and calibrates the previous one -------------
+def _planned_actions(config, seed, n):
+    """n valid actions a random planner chooses in an episode without overlap (a fixed list to replay)."""
+    e = ArcCalibEnv(replace(config, overlap=False))
+    try:
+        obs, _ = e.reset(seed=seed)
+        planner = RandomPlanner(e.session, np.random.default_rng(seed))
+        actions = []
+        for _ in range(n):
+            actions.append(planner.plan(obs))
+            obs, _, _, _, info = e.step(actions[-1])
+            assert info["refused"] == ""
+        return actions
+    finally:
+        e.close()
+
+
+def _replay_actions(config, seed, actions):
+    """(obs, reward, terminated, truncated, info) of each step replaying ``actions`` from reset(seed)."""
+    e = ArcCalibEnv(config)
+    try:
+        e.reset(seed=seed)
+        return [e.step(a) for a in actions]
+    finally:
+        e.close()
+
+
+def _assert_obs_equal(a, b):
+    assert a.keys() == b.keys()
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])
+
+
+@pytest.mark.parametrize("oracle", [True, False], ids=["oracle", "tracked"])
+def test_overlap_observes_the_same_calibration_one_motion_later(oracle):
+    """Same seed and actions: with overlap, step k+1 observes what step k observed without; the end is the same."""
+    n = 4
+    config = EnvConfig(scene=SMALL, max_motions=n, oracle_keypoints=oracle, terminate_on_convergence=False)
+    actions = _planned_actions(config, 7, n)
+    off = _replay_actions(config, 7, actions)
+    on = _replay_actions(replace(config, overlap=True), 7, actions)
+    assert on[0][4]["motion"] is None and on[0][4]["motion_index"] is None and "n_frames" not in on[0][4]
+    assert on[0][1] == pytest.approx(-config.step_cost, abs=1e-12) and on[0][0]["n_accepted"] == 0
+    for k in range(1, n):
+        (obs_off, _, _, _, info_off), (obs_on, _, _, _, info_on) = off[k - 1], on[k]
+        assert info_on["motion"] == info_off["motion"] and info_on["motion_index"] == k - 1
+        assert info_on["n_frames"] == info_off["n_frames"] and info_on["transit_rad"] == info_off["transit_rad"]
+        if k < n - 1:  # (the last step also flushed: below)
+            _assert_obs_equal(obs_on, obs_off)
+            assert (info_on["T_camera_base"] is None) == (info_off["T_camera_base"] is None)
+            if info_on["T_camera_base"] is not None:
+                np.testing.assert_array_equal(info_on["T_camera_base"], info_off["T_camera_base"])
+    assert [s[3] for s in on] == [s[3] for s in off] == [False] * (n - 1) + [True]
+    # the last step flushed: its observation and info hold every motion, like the episode without overlap
+    (obs_off, _, _, _, info_off), (obs_on, _, _, _, info_on) = off[-1], on[-1]
+    _assert_obs_equal(obs_on, obs_off)
+    assert info_on["flushed_motion"] == {**info_off["motion"], "index": n - 1, "n_frames": info_off["n_frames"]}
+    for key in ("rot_error_rad", "trans_error_m", "stage", "n_motions"):
+        assert info_on[key] == info_off[key]
+    assert sum(s[1] for s in on) == pytest.approx(sum(s[1] for s in off), abs=1e-12)
+    if oracle:
+        assert obs_on["has_estimate"] == 1  # the comparison compared estimates
+
+
+def test_overlap_passes_the_gymnasium_checker_and_same_seed_same_episode():
+    config = EnvConfig(scene=SMALL, max_motions=4, overlap=True)
+    e = gym.make("ArcCalib-v0", config=replace(config, max_motions=3))
+    try:
+        check_env(e.unwrapped, skip_render_check=True)
+    finally:
+        e.close()
+    runs = []
+    for _ in range(2):
+        e = ArcCalibEnv(config)
+        obs, _ = e.reset(seed=11)
+        planner = RandomPlanner(e.session, np.random.default_rng(5))
+        trace = [obs]
+        for _ in range(4):
+            obs, reward, terminated, truncated, info = e.step(planner.plan(obs))
+            info.pop("T_camera_base")
+            trace += [obs, reward, terminated, truncated, info]
+        runs.append(trace)
+        e.close()
+    assert runs[1][-1]["motion_index"] == 2 and runs[1][-1]["flushed_motion"]["index"] == 3
+    for x, y in zip(*runs, strict=True):
+        if isinstance(x, dict) and "translation" in x:
+            _assert_obs_equal(x, y)
+        else:
+            assert x == y
+
+
+def test_overlap_flushes_when_refusals_end_the_episode():
+    config = EnvConfig(scene=SMALL, max_motions=5, max_refusals=1, oracle_keypoints=True, overlap=True)
+    action = _planned_actions(config, 3, 1)[0]
+    e = ArcCalibEnv(config)
+    try:
+        e.reset(seed=3)
+        obs, reward, terminated, truncated, info = e.step(action)
+        assert info["motion"] is None and e.session.pending and not truncated
+        home = e.scene.robot.home.copy()
+        obs, reward, terminated, truncated, info = e.step({"Q": home, "J": 0, "delta": np.array([0.05])})
+        assert "below the minimum" in info["refused"] and truncated and not terminated
+        assert info["flushed_motion"]["index"] == 0 and "motion" not in info and not e.session.pending
+        assert len(e.session.calibrator.reports) == 1 and reward == -config.refusal_penalty  # no estimate from one
+    finally:
+        e.close()
