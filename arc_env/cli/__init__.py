@@ -114,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
                      help="motion selection (default random, the paper's); informed scores candidates by the "
                           "information they add (no image test: the twin has no camera image)")
     run.add_argument("--all-motions", action="store_true", help="do not stop at convergence")
+    run.add_argument("--overlap", action="store_true",
+                     help="track and calibrate each motion while the robot executes the next (the robot does not "
+                          "wait for the computer; the planner sees the estimate one motion late)")
     run.add_argument("--record", metavar="DIR", help="also save the sweeps as a recording in DIR")
     run.add_argument("--resume", metavar="DIR",
                      help="continue from the motions of an earlier run's recording (it is read, never written)")

@@ -6,6 +6,10 @@ the driver's) and collision-free over the whole sweep; once an estimate exists t
 also stay in view. Before the first estimate, motions are not checked for visibility (there is no image
 to test), so the first few may miss the camera and be pruned. The driver executes each motion, its
 frames are tracked and the calibrator updated; the episode ends on convergence or after ``--motions``.
+With ``--overlap`` a motion's frames are tracked and calibrated while the robot executes the next one
+(``SessionConfig.overlap``): the planner plans from the estimate without the motion just executed, the
+last one is processed after the loop, and the time the robot stood waiting for the computer is reported
+as "waited".
 The result is written like ``arc-calib calibrate``'s, and ``--record DIR`` also saves the sweeps as a
 recording. If the driver fails (or Ctrl-C) mid-run, the motions recorded so far are kept in ``--record DIR``
 and ``--resume DIR`` continues from them: they are tracked and given to the calibrator first (and copied
@@ -42,6 +46,7 @@ from arc_env.robot.session import (
     CalibrationSession,
     MotionDiagnostic,
     SessionConfig,
+    StepResult,
     copy_report,
     driver_session,
     estimate_status,
@@ -85,14 +90,29 @@ def run_online(args: argparse.Namespace) -> int:
 
     started = time.perf_counter()
     informed = getattr(args, "planner", "random") == "informed"
-    session = driver_session(driver, SessionConfig(), on_sweep)
+    overlap = bool(getattr(args, "overlap", False))
+    session = driver_session(driver, SessionConfig(overlap=overlap), on_sweep)
     log = open_rerun_log(args, session.robot, driver.intrinsics, f"run {args.driver}",
                          getattr(driver, "T_camera_base_true", None))  # simulated drivers know the truth
     session.observer = log
     renderer = TwinRenderer(session.robot, driver.intrinsics) if informed else None
     session.renderer = renderer
     diagnostics: list[MotionDiagnostic] = []
-    seconds = {"robot": 0.0, "tracking": 0.0, "solver": 0.0}
+    seconds = {"robot": 0.0, "tracking": 0.0, "solver": 0.0} | ({"waited": 0.0} if overlap else {})
+
+    def take(result: StepResult) -> None:
+        """Count a processed motion: its diagnostic (matched by its index), times and progress line."""
+        assert result.motion is not None and result.index is not None and calibrator is not None
+        m = result.motion
+        for key, part in (("robot", "render"), ("tracking", "tracking"), ("solver", "solver"), ("waited", "waited")):
+            if key in seconds:
+                seconds[key] += result.seconds.get(part, 0.0)
+        name = driver.joint_names[m.joint]
+        diagnostics.append(MotionDiagnostic(f"{result.index:03d}", name, result.n_frames, m.n_tracks))
+        s = calibrator.state
+        bar.step(f"joint {name}, {result.n_frames} frames, {m.n_tracks} tracks; "
+                 f"{estimate_status(s)}{' [converged]' if s.converged else ''}")
+
     try:
         session.reset(np.random.default_rng(args.seed))
         calibrator = session.calibrator
@@ -112,24 +132,27 @@ def run_online(args: argparse.Namespace) -> int:
                     bar.clear()
                     print(f"the planner found no motion: {exc}", file=sys.stderr)
                     break
+                before = session.n_motions
                 try:
                     result = session.step(np.asarray(action["Q"], dtype=np.float64), int(action["J"]),
                                           float(action["delta"][0]))
                 except Exception as exc:  # the driver's own code failed (or Ctrl-C, below)
                     bar.clear()
-                    raise DriverFailure(f"motion {session.n_motions} failed: {type(exc).__name__}: {exc}") from exc
+                    # not counted: this motion's execution failed; counted (overlap): the one in processing did
+                    failed = before if session.n_motions == before else before - 1
+                    raise DriverFailure(f"motion {failed} failed: {type(exc).__name__}: {exc}") from exc
                 if result.refused:
                     raise ArcCalibError(f"the session refused the planner's motion: {result.refused}")
-                assert result.motion is not None
-                m = result.motion
-                for key, part in (("robot", "render"), ("tracking", "tracking"), ("solver", "solver")):
-                    seconds[key] += result.seconds.get(part, 0.0)
-                name = driver.joint_names[m.joint]
-                diagnostics.append(MotionDiagnostic(f"{len(diagnostics):03d}", name, result.n_frames, m.n_tracks))
-                s = calibrator.state
-                bar.step(f"joint {name}, {result.n_frames} frames, {m.n_tracks} tracks; "
-                         f"{estimate_status(s)}{' [converged]' if s.converged else ''}")
+                if not result.pending:
+                    take(result)
                 obs = observation_from_estimate(calibrator.state.T_camera_base)
+            try:
+                last = session.flush()  # with overlap, the last motion executed (None without)
+            except Exception as exc:
+                bar.clear()
+                raise DriverFailure(f"motion {session.n_motions - 1} failed: {type(exc).__name__}: {exc}") from exc
+            if last is not None:
+                take(last)
         for report, diag in zip(calibrator.reports, diagnostics, strict=True):
             copy_report(report, diag)
         if writer is not None:

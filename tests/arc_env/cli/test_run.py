@@ -122,19 +122,20 @@ class _FailsOnFourthSweep(SimulatedDriver):
         return super().sweep(joint, delta)
 
 
-def test_a_driver_failure_keeps_the_motions_done_and_resume_continues(tmp_path, capsys):
+@pytest.mark.parametrize("overlap", [[], ["--overlap"]], ids=["serial", "overlap"])
+def test_a_driver_failure_keeps_the_motions_done_and_resume_continues(tmp_path, capsys, overlap):
     rec, out = tmp_path / "rec", tmp_path / "result.json"
     code = main(["run", "--driver", "tests.arc_env.cli.test_run:_FailsOnFourthSweep", "--motions", "6",
-                 "--output", str(out), "--record", str(rec), "--all-motions", "--quiet"])
+                 "--output", str(out), "--record", str(rec), "--all-motions", "--quiet"] + overlap)
     err = capsys.readouterr().err
-    assert code == 1 and "protective stop" in err and "Traceback" not in err
+    assert code == 1 and "motion 3 failed" in err and "protective stop" in err and "Traceback" not in err
     assert f"--resume {rec}" in err and not out.exists()
     kept = read_recording(rec)
     assert len(kept.motions) == 3  # the three finished sweeps; the failed one is not half-written
     before = {p: p.read_bytes() for p in rec.rglob("*") if p.is_file()}
     rec2 = tmp_path / "rec2"
     code = main(["run", "--driver", "tests.arc_env.cli.test_run:small_driver", "--motions", "5", "--resume", str(rec),
-                 "--output", str(out), "--record", str(rec2), "--all-motions", "--quiet"])
+                 "--output", str(out), "--record", str(rec2), "--all-motions", "--quiet"] + overlap)
     captured = capsys.readouterr()
     assert code in (0, 1) and "Traceback" not in captured.err, captured.err
     assert {p: p.read_bytes() for p in rec.rglob("*") if p.is_file()} == before  # the resumed input untouched
@@ -153,3 +154,27 @@ def test_resume_refuses_writing_into_the_resumed_recording(tmp_path, capsys):
     assert main(["run", "--driver", "tests.arc_env.cli.test_run:small_driver", "--resume", str(rec),
                  "--output", str(rec / "result.json")]) == 2
     assert "is inside the input" in capsys.readouterr().err
+
+
+def medium_driver():
+    return SimulatedDriver(width=640, height=360, seed=2, fps=10.0)  # enough pixels for tracks to differ by motion
+
+
+def test_run_with_overlap_reports_every_motion_as_without(tmp_path, capsys):
+    """--overlap: the same motions, each diagnostic on its own row (joint, frames, tracks, verdict), plus waited.
+
+    No estimate forms in these 5 motions, so the random planner (which tests visibility only against an
+    estimate) chooses the same motions with the estimate one motion late.
+    """
+    tables = {}
+    for flag in ([], ["--overlap"]):
+        code = main(["run", "--driver", "tests.arc_env.cli.test_run:medium_driver", "--motions", "5", "--all-motions",
+                     "--quiet", "--output", str(tmp_path / f"r{len(flag)}.json")] + flag)
+        out = capsys.readouterr().out
+        rows = [line for line in out.splitlines() if line.strip()[:3].isdigit()]
+        tables[bool(flag)] = (code, rows, out)
+    (code_off, rows_off, out_off), (code_on, rows_on, out_on) = tables[False], tables[True]
+    assert len(rows_off) == 5 and code_on == code_off
+    assert rows_on == rows_off, out_on
+    assert len({row.split()[3] for row in rows_off}) > 1  # the tracks differ by motion: a mismatch would show
+    assert "waited" in out_on and "waited" not in out_off
