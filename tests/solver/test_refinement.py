@@ -18,6 +18,7 @@ from solver.refinement import (
     build_track_set,
     clustered_pose_covariance,
     conservative_covariance,
+    motion_jackknife_covariance,
     pose_covariance,
     pose_information,
     refine,
@@ -376,6 +377,42 @@ def test_refine_needs_two_tracks():
     scene = _make_scene(15, n_motions=1, n_tracks=1)
     with pytest.raises(InsufficientMotionsError, match="fewer than two tracks"):
         refine(build_track_set(scene.motions, FOCAL), scene.T_true)
+
+
+def test_motion_jackknife_is_the_spread_of_leave_one_motion_out_refits():
+    """Linear least squares with M clusters of rows: the one-step jackknife is exact (independent refits)."""
+    rng = np.random.default_rng(11)
+    n, M = 6, 9
+    A = [rng.normal(size=(int(rng.integers(8, 20)), n)) for _ in range(M)]
+    y = [a @ rng.normal(size=n) + rng.normal(size=len(a)) for a in A]
+    A_all, y_all = np.vstack(A), np.concatenate(y)
+    x_hat = np.linalg.lstsq(A_all, y_all, rcond=None)[0]
+    H = np.array([a.T @ a for a in A])
+    g = np.array([a.T @ (a @ x_hat - b) for a, b in zip(A, y, strict=True)])  # each motion's score J^T r
+    refits = np.array([np.linalg.lstsq(np.vstack(A[:m] + A[m + 1:]), np.concatenate(y[:m] + y[m + 1:]),
+                                       rcond=None)[0] for m in range(M)])
+    d = refits - refits.mean(axis=0)
+    expected = (M - 1) / M * d.T @ d
+    got = motion_jackknife_covariance(H, g, H.sum(axis=0), max_leverage=0.999)  # no leverage reaches the cap here
+    np.testing.assert_allclose(got, expected, rtol=1e-8, atol=1e-12 * np.abs(expected).max())
+
+
+def test_motion_jackknife_caps_a_motion_that_alone_fixes_a_direction():
+    """One motion alone informs the last parameter: left out, it is undetermined; capped, its shift is bounded."""
+    rng = np.random.default_rng(12)
+    n, M = 3, 6
+    A = [np.hstack([rng.normal(size=(10, n - 1)), np.zeros((10, 1))]) for _ in range(M - 1)]
+    A.append(rng.normal(size=(10, n)))  # the only rows that see the last parameter
+    y = [a @ np.ones(n) + rng.normal(size=10) for a in A]
+    x_hat = np.linalg.lstsq(np.vstack(A), np.concatenate(y), rcond=None)[0]
+    H = np.array([a.T @ a for a in A])
+    g = np.array([a.T @ (a @ x_hat - b) for a, b in zip(A, y, strict=True)])
+    out = motion_jackknife_covariance(H, g, H.sum(axis=0), max_leverage=0.9)
+    assert np.all(np.isfinite(out)) and np.linalg.eigvalsh(out).min() > -1e-12 * np.abs(out).max()
+    wider = motion_jackknife_covariance(H, g, H.sum(axis=0), max_leverage=0.99)
+    assert wider[-1, -1] > out[-1, -1]  # the closer to 1 the cap, the larger the unverifiable direction's variance
+    with pytest.raises(InvalidInputError):
+        motion_jackknife_covariance(H, g, H.sum(axis=0), max_leverage=1.0)
 
 
 def test_refinement_config_defaults():
