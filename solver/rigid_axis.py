@@ -199,6 +199,58 @@ def sphere_directions(n: int) -> FloatArray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
+def _grid_costs(x: FloatArray, y: FloatArray, theta: FloatArray, directions: FloatArray,
+                focal: float, config: RigidAxisConfig) -> tuple[FloatArray, FloatArray]:
+    """Each trial axis's best truncated Sampson cost (D,) (normalized units^2) and its proposal p (D, 3).
+
+    Args:
+        x: (L, 3) first rays (u, v, 1) of the tracks, normalized camera coordinates.
+        y: (L, 3) last rays likewise.
+        theta: (L,) rad, each track's joint turn from its first to its last frame.
+        directions: (D, 3) unit trial axes.
+        focal: mean focal length, px.
+        config: ``ransac_px``, the truncation of each track's Sampson distance, px.
+
+    For axis ``a`` and track ``l`` (rotation R_l by theta_l about a, M_l = I - R_l) the epipolar
+    constraint of a proposal p is ``t . v_l = p . g_l`` with t = M_l p, v_l = R_l x_l x y_l,
+    g_l = M_l^T v_l, and the Sampson denominator ``|(t x R_l x_l)_xy|^2 + |(R_l^T (t x y_l))_xy|^2``
+    is the quadratic form p^T G_l p, G_l = E_l^T E_l + F_l^T F_l with E_l = ([R_l x_l]x M_l)_xy and
+    F_l = (R_l^T [y_l]x M_l)_xy: every (proposal, track) pair costs two 3- and 6-term dot products.
+    """
+    threshold = (config.ransac_px / focal) ** 2
+    costs = np.empty(directions.shape[0])
+    points = np.empty_like(directions)
+    c, s = np.cos(theta)[None, :, None, None], np.sin(theta)[None, :, None, None]
+    iu, ju = np.triu_indices(3)
+    for lo in range(0, directions.shape[0], _GRID_CHUNK):
+        a = directions[lo:lo + _GRID_CHUNK]  # (A, 3)
+        R = c * np.eye(3) + s * _skew(a)[:, None] + (1.0 - c) * np.einsum("ai,aj->aij", a, a)[:, None]  # (A, L, 3, 3)
+        M = np.eye(3) - R
+        Rx = np.einsum("alij,lj->ali", R, x)
+        v = np.cross(Rx, y)  # the constraint t . v = 0 of each track, t = (I - R) p
+        g = np.einsum("alji,alj->ali", M, v)  # (I - R)^T v: p . g = 0
+        p = np.cross(a[:, None, :], g)  # (A, L, 3) each track's proposal, perpendicular to a and g
+        p /= np.maximum(np.linalg.norm(p, axis=2, keepdims=True), 1e-300)
+        EF = np.concatenate([_skew(Rx)[..., :2, :] @ M,  # E (A, L, 2, 3) over F
+                             np.swapaxes(R[..., :2], -1, -2) @ (_skew(y) @ M)], axis=-2)
+        # p^T G p as 6 products: G's diagonal once, its off-diagonal pairs twice
+        G6 = np.einsum("...ki,...ki->...i", EF[..., iu], EF[..., ju]) * np.where(iu == ju, 1.0, 2.0)
+        pp = p[..., iu] * p[..., ju]  # (A, L proposals, 6)
+        num = p @ np.swapaxes(g, 1, 2)  # (A, L proposals, L tracks)
+        den = pp @ np.swapaxes(G6, 1, 2)
+        sampson = num ** 2 / np.maximum(den, 1e-300)
+        cost = np.sum(np.minimum(sampson, threshold), axis=2)  # (A, L proposals)
+        best = np.argmin(cost, axis=1)
+        pick = np.arange(a.shape[0])
+        costs[lo:lo + _GRID_CHUNK] = cost[pick, best]
+        points[lo:lo + _GRID_CHUNK] = p[pick, best]
+    return costs, points
+
+
+#: Trial axes per batch of ``_grid_costs`` (memory: about 100 * chunk * L^2 bytes).
+_GRID_CHUNK = 256
+
+
 def _grid_starts(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
                  config: RigidAxisConfig) -> list[tuple[FloatArray, FloatArray]]:
     """Starting (a, p) pairs from an exhaustive search over axis directions (best first).
@@ -209,38 +261,17 @@ def _grid_starts(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     them is known (the joint's turn), and the rigid motion's translation ``(I - R) p`` with ``p``
     perpendicular to ``a`` leaves one unknown, ``p``'s direction in that plane, which one track's
     epipolar constraint fixes. So every track proposes a ``p``; each proposal is scored by the Sampson
-    distances (px, truncated at ``config.ransac_px``) of all tracks, and the trial axis keeps its best.
-    The axes with the lowest truncated cost, at least 15 degrees apart, are the starts.
+    distances (px, truncated at ``config.ransac_px``) of all tracks (``_grid_costs``), and the trial
+    axis keeps its best. The axes with the lowest truncated cost, at least 15 degrees apart, are the starts.
     """
     turn = np.array([d[-1] - d[0] for d in deltas])
     use = np.flatnonzero(np.abs(turn) >= config.min_pair_angle)
     if config.grid_directions == 0 or use.shape[0] < config.min_tracks:
         return []
-    theta = turn[use]
     x = np.column_stack([np.array([uv[t][0] for t in use]), np.ones(use.shape[0])])  # (L, 3) first rays
     y = np.column_stack([np.array([uv[t][-1] for t in use]), np.ones(use.shape[0])])  # (L, 3) last rays
     directions = sphere_directions(config.grid_directions)
-    threshold = (config.ransac_px / focal) ** 2
-    costs = np.empty(directions.shape[0])
-    points = np.empty_like(directions)
-    c, s = np.cos(theta)[None, :, None, None], np.sin(theta)[None, :, None, None]
-    for lo in range(0, directions.shape[0], 64):
-        a = directions[lo:lo + 64]  # (A, 3)
-        R = c * np.eye(3) + s * _skew(a)[:, None] + (1.0 - c) * np.einsum("ai,aj->aij", a, a)[:, None]  # (A, L, 3, 3)
-        Rx = np.einsum("alij,lj->ali", R, x)
-        v = np.cross(Rx, y)  # the constraint t . v = 0 of each track, t = (I - R) p
-        g = v - np.einsum("alji,alj->ali", R, v)  # (I - R)^T v: p . g = 0
-        p = np.cross(a[:, None, :], g)  # (A, L, 3) each track's proposal, perpendicular to a and g
-        p /= np.maximum(np.linalg.norm(p, axis=2, keepdims=True), 1e-300)
-        t = p[:, :, None, :] - np.einsum("amij,alj->almi", R, p)  # (A, L proposals, L tracks, 3)
-        num = np.einsum("almi,ami->alm", t, v)
-        ex = np.cross(t, Rx[:, None])[..., :2]
-        ety = -np.einsum("amji,almj->almi", R, np.cross(t, y[None, None]))[..., :2]
-        sampson = num ** 2 / np.maximum(np.sum(ex ** 2, axis=-1) + np.sum(ety ** 2, axis=-1), 1e-300)
-        cost = np.sum(np.minimum(sampson, threshold), axis=2)  # (A, L)
-        best = np.argmin(cost, axis=1)
-        costs[lo:lo + 64] = cost[np.arange(a.shape[0]), best]
-        points[lo:lo + 64] = p[np.arange(a.shape[0]), best]
+    costs, points = _grid_costs(x, y, turn[use], directions, focal, config)
     starts: list[tuple[FloatArray, FloatArray]] = []
     for k in np.argsort(costs):
         if not any(directions[k] @ a > np.cos(np.radians(15.0)) for a, _ in starts):

@@ -15,6 +15,7 @@ from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservati
 from solver.rigid_axis import (
     RigidAxisConfig,
     _ArrowSystem,
+    _grid_costs,
     _grid_starts,
     _refine,
     _residuals,
@@ -258,6 +259,42 @@ def test_the_grid_search_starts_near_the_axis_with_half_the_tracks_sliding(seed)
     for i, (a, p) in enumerate(starts):
         assert abs(a @ p) < 1e-9 and abs(np.linalg.norm(p) - 1.0) < 1e-9
         assert all(_angle(a, b) > np.radians(15.0) for b, _ in starts[:i])
+
+
+def _sampson_by_essential_matrix(x, y, R, t):
+    """Sampson distance (normalized units^2) of the rays x -> y (3,) under E = [t]x R, written out."""
+    t_cross = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    E = t_cross @ R
+    Ex, Ety = E @ x, E.T @ y
+    return float((y @ E @ x) ** 2 / (Ex[0] ** 2 + Ex[1] ** 2 + Ety[0] ** 2 + Ety[1] ** 2))
+
+
+def test_the_grid_costs_match_essential_matrices_built_track_by_track():
+    """Each trial axis's cost against the definition: every track's p from the null space of [a; its epipolar
+    row], every proposal scored by explicit essential matrices of every track, truncated, the best kept."""
+    obs, axis = _far_scene(0)
+    uv = [normalized_from_pixels(t.pixels, CAMERA) for t in obs.tracks]
+    x = np.array([np.append(u[0], 1.0) for u in uv])
+    y = np.array([np.append(u[-1], 1.0) for u in uv])
+    theta = np.array([t.delta[-1] - t.delta[0] for t in obs.tracks])
+    config = RigidAxisConfig(ransac_px=2.0)
+    threshold = (config.ransac_px / 1380.0) ** 2
+    directions = np.vstack([axis, sphere_directions(300)[::37]])  # the true axis and 9 others
+    costs, points = _grid_costs(x, y, theta, directions, 1380.0, config)
+    for a, cost, point in zip(directions, costs, points, strict=True):
+        Rs = [Rotation.from_rotvec(th * a).as_matrix() for th in theta]
+        proposals = []
+        for R, xl, yl in zip(Rs, x, y, strict=True):
+            row = (np.eye(3) - R).T @ np.cross(R @ xl, yl)  # (I - R) p . (R x cross y) = 0
+            proposals.append(np.linalg.svd(np.array([a, row]))[2][-1])
+        totals = [sum(min(_sampson_by_essential_matrix(xl, yl, R, (np.eye(3) - R) @ p), threshold)
+                      for R, xl, yl in zip(Rs, x, y, strict=True)) for p in proposals]
+        assert cost == pytest.approx(min(totals), rel=1e-9)
+        # the kept proposal is a best one (up to sign: p and -p give the same costs)
+        best = [p for p, total in zip(proposals, totals, strict=True) if total <= min(totals) * (1 + 1e-9)]
+        assert min(min(np.linalg.norm(point - p), np.linalg.norm(point + p)) for p in best) < 1e-9
+    # not a comparison of truncation constants: the true axis explains the rigid half of the tracks
+    assert np.argmin(costs) == 0 and costs[0] < 0.7 * np.min(costs[1:])
 
 
 def test_a_far_camera_with_sliding_tracks_still_gives_the_axis():
