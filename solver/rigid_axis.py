@@ -71,6 +71,9 @@ class RigidAxisConfig:
         grid_directions: axis directions of the exhaustive start search (``_grid_starts``: evenly
             over the sphere, about 4.5 degrees apart at 2000); count, 0 = no grid search.
         grid_starts: most starts the grid search hands to the fit (best first, 15 degrees apart); count.
+        predicted_angle: rad; a predicted start (``fit_rigid_axis``'s ``predicted``: the axis a known camera
+            pose gives) is taken, and no other start tried, when its fit ends within this angle of the
+            prediction and keeps at least ``min_inlier_fraction`` (and ``min_tracks``) of the fit tracks.
     """
 
     min_tracks: int = 6
@@ -87,6 +90,7 @@ class RigidAxisConfig:
     grid_starts: int = 3
     noise_factor: float = 0.0
     noise_quantile: float = 0.25
+    predicted_angle: float = 0.05
 
     def __post_init__(self) -> None:
         if self.min_tracks < 5:
@@ -95,11 +99,11 @@ class RigidAxisConfig:
                 and self.loss_scale_px > 0 and self.max_axis_std > 0 and 0 < self.min_inlier_fraction <= 1
                 and self.max_fit_tracks >= self.min_tracks and self.max_fit_frames >= 3
                 and 0 < self.enough_inlier_fraction <= 1 and self.grid_directions >= 0 and self.grid_starts >= 1
-                and self.noise_factor >= 0 and 0 < self.noise_quantile < 1):
+                and self.noise_factor >= 0 and 0 < self.noise_quantile < 1 and self.predicted_angle > 0):
             raise InvalidInputError("RigidAxisConfig: angles, thresholds and scales must be > 0, min_inlier_fraction "
                                     "and enough_inlier_fraction in (0, 1], max_fit_tracks >= min_tracks, "
                                     "max_fit_frames >= 3, grid_directions >= 0, grid_starts >= 1, noise_factor >= 0, "
-                                    "noise_quantile in (0, 1)")
+                                    "noise_quantile in (0, 1), predicted_angle > 0")
 
 
 @dataclass(frozen=True)
@@ -113,6 +117,7 @@ class RigidAxisFit:
         track_rms_px: (L,) RMS residual of each track under the fit, px (inf: not fitted).
         track_inliers: (L,) bool: tracks that move rigidly with the others.
         rms_px: RMS residual of the inlier tracks, px.
+        from_prediction: True when the fit came from the predicted start alone (no search ran).
     """
 
     axis_cam: FloatArray
@@ -121,6 +126,7 @@ class RigidAxisFit:
     track_rms_px: FloatArray
     track_inliers: BoolArray
     rms_px: float
+    from_prediction: bool = False
 
 
 def _basis(a: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -685,7 +691,8 @@ def _fit_from_start(uv: list[FloatArray], deltas: list[FloatArray], a: FloatArra
 
 def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
                    config: RigidAxisConfig | None = None,
-                   starts: list[tuple[FloatArray, FloatArray]] | None = None) -> RigidAxisFit:
+                   starts: list[tuple[FloatArray, FloatArray]] | None = None,
+                   predicted: tuple[FloatArray, FloatArray] | None = None) -> RigidAxisFit:
     """Fit one rotation by known angles about an unknown line to all tracks of a motion.
 
     Args:
@@ -696,6 +703,11 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         starts: more starting guesses (axis (3,) unit, a point of the axis (3,)), e.g. the conic
             front end's, tried before the relative poses; the fit keeps whichever start ends with the
             lowest truncated cost (and tries no more once one keeps ``enough_inlier_fraction``).
+        predicted: the axis (3,) unit and a point of it (3,), camera frame, that a camera pose predicts
+            (e.g. ``R_camera_base @ axis_base`` and ``T_camera_base @ point_base``), tried before anything
+            else: when its fit stays within ``config.predicted_angle`` of it and keeps ``min_inlier_fraction``
+            of the fit tracks, that fit is taken and no other start (nor the searches) is tried; else it is
+            set aside and the starts above decide, as without it. The fit is still the tracks' own.
 
     Returns:
         The axis, the axis point at unit distance, per-track residuals and inliers.
@@ -720,12 +732,7 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     deltas = [all_deltas[t][k] for t, k in zip(fit_set, picks, strict=True)]
     n_fit = len(fit_set)
     angles, frames = _frame_table(deltas)
-    guesses = []
-    for a, p in starts or []:
-        a = np.asarray(a, dtype=np.float64) / np.linalg.norm(a)
-        p = np.asarray(p, dtype=np.float64) - a * (a @ p)
-        if np.linalg.norm(p) > 1e-9:
-            guesses.append((a, p / np.linalg.norm(p)))
+    guesses = _line_starts(starts or [])
 
     def candidates():  # the given starts first, then the searches (only if those are not enough)
         yield from guesses
@@ -733,7 +740,13 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         yield from _relative_pose(uv, frames, angles, focal, config)
 
     best = None
-    for a0, p0 in candidates():
+    for a0, p0 in _line_starts([predicted] if predicted is not None else []):
+        fit = _fit_from_start(uv, deltas, a0, p0, focal, config, noise_px)
+        if (fit[5] >= max(config.min_tracks, config.min_inlier_fraction * n_fit)
+                and fit[1] @ a0 >= np.cos(config.predicted_angle)):
+            best = fit
+    from_prediction = best is not None
+    for a0, p0 in candidates() if best is None else ():
         fit = _fit_from_start(uv, deltas, a0, p0, focal, config, noise_px)
         if best is None or fit[0] < best[0]:
             best = fit
@@ -756,15 +769,31 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     if not axis_std <= config.max_axis_std:
         raise DegenerateMotionError(
             f"rigid front end: the tracks do not fix the axis (1-sigma {axis_std:.3f} rad > {config.max_axis_std})")
-    return RigidAxisFit(a, p, axis_std, track_rms, keep, rms_in)
+    return RigidAxisFit(a, p, axis_std, track_rms, keep, rms_in, from_prediction)
+
+
+def _line_starts(lines: list[tuple[FloatArray, FloatArray]]) -> list[tuple[FloatArray, FloatArray]]:
+    """Starts (a (3,) unit, p (3,) unit and perpendicular to a) from axes (3,) and points (3,) of them.
+
+    A line through the camera centre (no perpendicular offset) gives no start.
+    """
+    out = []
+    for a, p in lines:
+        a = np.asarray(a, dtype=np.float64) / np.linalg.norm(a)
+        p = np.asarray(p, dtype=np.float64) - a * (a @ p)
+        if np.linalg.norm(p) > 1e-9:
+            out.append((a, p / np.linalg.norm(p)))
+    return out
 
 
 def rigid_axis_of_motion(obs: MotionObservation, intrinsics: CameraIntrinsics,
                          config: RigidAxisConfig | None = None,
-                         starts: list[tuple[FloatArray, FloatArray]] | None = None) -> RigidAxisFit:
+                         starts: list[tuple[FloatArray, FloatArray]] | None = None,
+                         predicted: tuple[FloatArray, FloatArray] | None = None) -> RigidAxisFit:
     """``fit_rigid_axis`` on a motion's tracks in pixels (undistorted through the intrinsics)."""
     uv = [normalized_from_pixels(t.pixels, intrinsics) for t in obs.tracks]
-    return fit_rigid_axis(uv, [t.delta for t in obs.tracks], float(np.mean(intrinsics.focal)), config, starts)
+    return fit_rigid_axis(uv, [t.delta for t in obs.tracks], float(np.mean(intrinsics.focal)), config, starts,
+                          predicted)
 
 
 def geometry_from_rigid_fit(fit: RigidAxisFit) -> MotionGeometry:

@@ -9,6 +9,7 @@ import pytest
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+import solver.rigid_axis as rigid_axis_module
 from solver.camera import normalized_from_pixels
 from solver.errors import DegenerateMotionError, InvalidInputError
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
@@ -306,6 +307,64 @@ def test_a_far_camera_with_sliding_tracks_still_gives_the_axis():
     assert RigidAxisConfig(grid_directions=0).grid_directions == 0
     with pytest.raises(InvalidInputError, match="grid_directions"):
         RigidAxisConfig(grid_directions=-1)
+
+
+def _count_searches(monkeypatch) -> dict[str, int]:
+    """Count the calls of both start searches (they still run)."""
+    calls = {"grid": 0, "relative": 0}
+    for name, key in (("_grid_starts", "grid"), ("_relative_pose", "relative")):
+        original = getattr(rigid_axis_module, name)
+
+        def counted(*args, _original=original, _key=key):
+            calls[_key] += 1
+            return _original(*args)
+
+        monkeypatch.setattr(rigid_axis_module, name, counted)
+    return calls
+
+
+def _tilted(axis: np.ndarray, angle: float) -> np.ndarray:
+    """``axis`` (3,) unit turned by ``angle`` rad about a perpendicular direction."""
+    return Rotation.from_rotvec(angle * np.cross(axis, [0.0, 0.0, 1.0]) / np.linalg.norm(np.cross(axis, [0, 0, 1.0])))\
+        .apply(axis)
+
+
+def test_a_right_predicted_start_is_fitted_and_no_search_runs(monkeypatch):
+    """Half the tracks slide; the prediction is 1.5 deg and 1.4 cm off: the tracks' own fit from it is taken."""
+    obs, axis = _far_scene(0)
+    calls = _count_searches(monkeypatch)
+    searched = rigid_axis_of_motion(obs, CAMERA)
+    assert calls["grid"] == 1 and not searched.from_prediction
+    searched_relative = calls["relative"]
+    point = searched.point_cam * 2.1  # the searched line at about the scene's depth, m
+    predicted = (_tilted(axis, np.radians(1.5)), point + np.array([0.01, -0.01, 0.0]))
+    fit = rigid_axis_of_motion(obs, CAMERA, predicted=predicted)
+    assert fit.from_prediction and calls["grid"] == 1  # no search ran this time
+    assert calls["relative"] == searched_relative
+    assert _angle(fit.axis_cam, axis) < np.radians(1.0)
+    assert _angle(fit.axis_cam, searched.axis_cam) < np.radians(0.3)
+    # the rigid tracks kept, the sliding ones dropped, as the search's fit does (borderline ones aside)
+    assert fit.track_inliers[:20].sum() >= 18 and np.sum(fit.track_inliers != searched.track_inliers) <= 2
+
+
+@pytest.mark.parametrize("wrong_by", [np.radians(60.0), np.pi])  # a turned axis; the opposite one
+def test_a_wrong_predicted_start_falls_back_to_the_search(monkeypatch, wrong_by):
+    obs, axis = _far_scene(1)  # seed 1: only the grid search finds the rigid motion
+    calls = _count_searches(monkeypatch)
+    predicted = (_tilted(axis, wrong_by), np.array([0.1, 0.0, 2.0]))
+    fit = rigid_axis_of_motion(obs, CAMERA, predicted=predicted)
+    assert not fit.from_prediction and calls["grid"] == 1
+    assert _angle(fit.axis_cam, axis) < np.radians(1.0)
+    assert fit.track_inliers[:20].sum() >= 18 and fit.track_inliers[20:].sum() <= 2
+    # the search decides as without a prediction: the same fit
+    plain = rigid_axis_of_motion(obs, CAMERA)
+    np.testing.assert_array_equal(fit.axis_cam, plain.axis_cam)
+    np.testing.assert_array_equal(fit.track_inliers, plain.track_inliers)
+
+
+def test_the_predicted_angle_is_checked():
+    with pytest.raises(InvalidInputError, match="predicted_angle"):
+        RigidAxisConfig(predicted_angle=0.0)
 
 
 def test_the_track_threshold_follows_the_tracks_noise():
