@@ -27,7 +27,7 @@ from solver.errors import DegenerateMotionError, DegenerateTrajectoryError, Inva
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
 from solver.reference_lines import (
     PhaseCircles,
-    candidate_score,
+    candidate_scores,
     centres_3d,
     fit_phase_circles,
     fit_reference_plane,
@@ -266,7 +266,7 @@ def estimate_motion_geometry(obs: MotionObservation, intrinsics: CameraIntrinsic
         raise DegenerateMotionError("no trajectory gave an ellipse, so no axis candidate exists")
 
     points = _gather(rays, deltas, usable)
-    scores = np.array([candidate_score(_circles(points, a)) for a in cand])
+    scores = candidate_scores(points.rays, points.delta, points.ids, points.n, cand)
     seeds: list[FloatArray] = []
     for k in np.argsort(scores):
         if all(np.arccos(np.clip(cand[k] @ s, -1, 1)) > config.branch_angle for s in seeds):

@@ -78,6 +78,10 @@ class CalibratorConfig:
             realistic real2 no pose in all three; clean painted paint0 1.90e-4 / 0.11 mm (conics
             only) against 4.84e-4 / 0.32 mm (every motion): it wins on realistic images, where most
             tracks slide, and costs some accuracy on painted ones, where nearly all are rigid.
+        predicted_start: once there is a refined pose, the rigid front end first tries the motion's axis and
+            reference ray that the pose predicts (R @ axis_base, R @ point_base + t) as its start, and skips its
+            searches when the tracks' own fit from there stays near it (``fit_rigid_axis``'s ``predicted``,
+            ``RigidAxisConfig.predicted_angle``); a wrong prediction falls back to the searches.
         refinement: bundle adjustment.
         convergence: the sliding-window monitor.
         refine: run the bundle adjustment (off: the paper's linear method only).
@@ -131,6 +135,7 @@ class CalibratorConfig:
     motion: MotionConfig = field(default_factory=MotionConfig)
     rigid_axis: RigidAxisConfig | None = field(default_factory=RigidAxisConfig)
     rigid_always: bool = True
+    predicted_start: bool = True
     refinement: RefinementConfig = field(default_factory=RefinementConfig)
     convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
     refine: bool = True
@@ -178,6 +183,8 @@ class MotionReport:
             conics gave an axis and ``CalibratorConfig.rigid_always`` is False).
         n_inconsistent_tracks: tracks the rigid front end dropped (they do not move rigidly with the
             others by the known angles).
+        rigid_predicted: the rigid front end's fit came from the start the refined pose predicted, with no
+            search (``CalibratorConfig.predicted_start``).
     """
 
     index: int
@@ -194,6 +201,7 @@ class MotionReport:
     conics: str = ""
     rigid: str = ""
     n_inconsistent_tracks: int = 0
+    rigid_predicted: bool = False
 
 
 @dataclass(frozen=True)
@@ -395,7 +403,7 @@ class Calibrator:
                 geometry = None
                 report.conics = str(exc)
             if self.config.rigid_axis is not None and (geometry is None or self.config.rigid_always):
-                moving, geometry = self._rigid_front_end(obs, moving, geometry, report)
+                moving, geometry = self._rigid_front_end(obs, moving, geometry, report, axis, point)
             if geometry is None:
                 report.stage_one = "; ".join(r for r in (report.conics, report.rigid) if r)
             cap_tracks, cap_frames = self.config.max_tracks_per_motion, self.config.max_frames_per_track
@@ -754,21 +762,28 @@ class Calibrator:
         return m.geometry if m is not None else None
 
     def _rigid_front_end(self, obs: MotionObservation, moving: list[KeypointTrack],
-                         conics: MotionGeometry | None, report: MotionReport
-                         ) -> tuple[list[KeypointTrack], MotionGeometry | None]:
+                         conics: MotionGeometry | None, report: MotionReport, axis_base: FloatArray,
+                         point_base: FloatArray) -> tuple[list[KeypointTrack], MotionGeometry | None]:
         """Run the rigid front end: (the tracks that move rigidly, the motion's geometry).
 
+        ``axis_base`` (3,) unit and ``point_base`` (3,) m: the motion's joint axis in the base frame, whose
+        image under the refined pose (if any, and ``CalibratorConfig.predicted_start``) is tried first.
         Without a fit (too few tracks, no shared frames, an unfixed axis) the tracks and the conics'
         geometry stay as they are and ``report.rigid`` says why.
         """
         starts = [] if conics is None else [(conics.axis_cam, conics.reference_cam)]
+        predicted = None
+        if self.config.predicted_start and self._refined is not None:
+            T = self._refined.T_camera_base
+            predicted = (T[:3, :3] @ axis_base, T[:3, :3] @ point_base + T[:3, 3])
         try:
             fit = rigid_axis_of_motion(MotionObservation(obs.q_start, obs.joint, tuple(moving)), self.intrinsics,
-                                       self.config.rigid_axis, starts)
+                                       self.config.rigid_axis, starts, predicted)
         except DegenerateMotionError as exc:
             report.rigid = str(exc)
             return moving, conics
         report.n_inconsistent_tracks = int(np.sum(~fit.track_inliers))
+        report.rigid_predicted = fit.from_prediction
         report.front_end = "rigid"
         kept = [t for t, ok in zip(moving, fit.track_inliers, strict=True) if ok]
         return kept, geometry_from_rigid_fit(fit)

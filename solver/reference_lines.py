@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.sparse import csr_array
 
 from solver.arrays import FloatArray
 
@@ -23,9 +24,14 @@ IntArray = NDArray[np.int64]
 def plane_basis(axis: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Orthonormal e1, e2 (each (3,)) spanning the plane normal to ``axis``, with e1 x e2 = axis."""
     helper = np.eye(3)[int(np.argmin(np.abs(axis)))]
-    e1 = np.cross(helper, axis)
+    e1 = _cross(helper, axis)
     e1 /= np.linalg.norm(e1)
-    return e1, np.cross(axis, e1)
+    return e1, _cross(axis, e1)
+
+
+def _cross(a: FloatArray, b: FloatArray) -> FloatArray:
+    """The cross product of two (3,) vectors: np.cross's arithmetic (the same bits) without its overhead."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 def project_to_plane(rays: FloatArray, axis: FloatArray) -> FloatArray:
@@ -120,6 +126,55 @@ def candidate_score(circles: PhaseCircles, keep_fraction: float = 0.75) -> float
     rel = circles.costs / (np.maximum(circles.counts, 1) * np.maximum(circles.radii, 1e-300) ** 2)
     rel = np.sort(np.where(np.isfinite(rel), rel, 1e6))
     return float(np.sum(rel[: max(1, int(np.ceil(keep_fraction * rel.size)))]))
+
+
+def candidate_scores(rays: FloatArray, delta: FloatArray, track_ids: IntArray, n_tracks: int, axes: FloatArray,
+                     keep_fraction: float = 0.75) -> FloatArray:
+    """Eq. 18's score of many candidate axes at once (C,): ``candidate_score`` of each one's phase circles.
+
+    The same as ``candidate_score(fit_phase_circles(project_to_plane(rays, a), delta, track_ids, n_tracks))``
+    for every row ``a`` of ``axes`` (up to rounding), with the per-track sums as matrix products over
+    blocks of candidates.
+
+    Args:
+        rays: (P, 3) float64: rays (u, v, 1) of every trajectory's points, camera frame.
+        delta: (P,) float64, radians: joint turn at each point.
+        track_ids: (P,) int: which trajectory (0..n_tracks-1) each point belongs to.
+        n_tracks: L.
+        axes: (C, 3) float64: unit candidate axes.
+        keep_fraction: see ``candidate_score``.
+    """
+    helpers = np.eye(3)[np.argmin(np.abs(axes), axis=1)]  # plane_basis, row by row
+    e1 = np.cross(helpers, axes)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(axes, e1)
+    one_hot = csr_array((np.ones(track_ids.size), (track_ids, np.arange(track_ids.size))),
+                        shape=(n_tracks, track_ids.size))  # (L, P): per-track sums as products
+    n = np.bincount(track_ids, minlength=n_tracks).astype(np.float64)[:, None]  # (L, 1)
+    e = np.exp(1j * delta)
+    S = (one_hot @ e)[:, None]
+    det = n * n - np.abs(S) ** 2
+    good = det > 1e-12 * np.maximum(n * n, 1.0)
+    safe = np.where(good, det, 1.0)
+    keep = max(1, int(np.ceil(keep_fraction * n_tracks)))
+    scores = np.empty(axes.shape[0])
+    for lo in range(0, axes.shape[0], _SCORE_CHUNK):
+        block = slice(lo, lo + _SCORE_CHUNK)
+        depth = rays @ axes[block].T  # (P, C): X = ray / depth lies on sigma
+        z = (rays @ e1[block].T) / depth + 1j * ((rays @ e2[block].T) / depth)
+        Z1, Z2 = one_hot @ z, one_hot @ (np.conj(e)[:, None] * z)  # (L, C)
+        c = np.where(good, (n * Z1 - S * Z2) / safe, Z1 / np.maximum(n, 1))
+        gamma = np.where(good, (n * Z2 - np.conj(S) * Z1) / safe, 0)
+        residual = z - c[track_ids] - gamma[track_ids] * e[:, None]
+        costs = np.where(good, one_hot @ (residual.real ** 2 + residual.imag ** 2), np.inf)
+        rel = costs / (np.maximum(n, 1) * np.maximum(np.abs(gamma), 1e-300) ** 2)
+        rel = np.sort(np.where(np.isfinite(rel), rel, 1e6), axis=0)
+        scores[block] = np.sum(rel[:keep], axis=0)
+    return scores
+
+
+#: Candidates per block of ``candidate_scores`` (memory: about 100 * chunk * P bytes).
+_SCORE_CHUNK = 128
 
 
 def centres_3d(centres: FloatArray, axis: FloatArray) -> FloatArray:

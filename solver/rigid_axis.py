@@ -71,6 +71,9 @@ class RigidAxisConfig:
         grid_directions: axis directions of the exhaustive start search (``_grid_starts``: evenly
             over the sphere, about 4.5 degrees apart at 2000); count, 0 = no grid search.
         grid_starts: most starts the grid search hands to the fit (best first, 15 degrees apart); count.
+        predicted_angle: rad; a predicted start (``fit_rigid_axis``'s ``predicted``: the axis a known camera
+            pose gives) is taken, and no other start tried, when its fit ends within this angle of the
+            prediction and keeps at least ``min_inlier_fraction`` (and ``min_tracks``) of the fit tracks.
     """
 
     min_tracks: int = 6
@@ -87,6 +90,7 @@ class RigidAxisConfig:
     grid_starts: int = 3
     noise_factor: float = 0.0
     noise_quantile: float = 0.25
+    predicted_angle: float = 0.05
 
     def __post_init__(self) -> None:
         if self.min_tracks < 5:
@@ -95,11 +99,11 @@ class RigidAxisConfig:
                 and self.loss_scale_px > 0 and self.max_axis_std > 0 and 0 < self.min_inlier_fraction <= 1
                 and self.max_fit_tracks >= self.min_tracks and self.max_fit_frames >= 3
                 and 0 < self.enough_inlier_fraction <= 1 and self.grid_directions >= 0 and self.grid_starts >= 1
-                and self.noise_factor >= 0 and 0 < self.noise_quantile < 1):
+                and self.noise_factor >= 0 and 0 < self.noise_quantile < 1 and self.predicted_angle > 0):
             raise InvalidInputError("RigidAxisConfig: angles, thresholds and scales must be > 0, min_inlier_fraction "
                                     "and enough_inlier_fraction in (0, 1], max_fit_tracks >= min_tracks, "
                                     "max_fit_frames >= 3, grid_directions >= 0, grid_starts >= 1, noise_factor >= 0, "
-                                    "noise_quantile in (0, 1)")
+                                    "noise_quantile in (0, 1), predicted_angle > 0")
 
 
 @dataclass(frozen=True)
@@ -113,6 +117,7 @@ class RigidAxisFit:
         track_rms_px: (L,) RMS residual of each track under the fit, px (inf: not fitted).
         track_inliers: (L,) bool: tracks that move rigidly with the others.
         rms_px: RMS residual of the inlier tracks, px.
+        from_prediction: True when the fit came from the predicted start alone (no search ran).
     """
 
     axis_cam: FloatArray
@@ -121,6 +126,7 @@ class RigidAxisFit:
     track_rms_px: FloatArray
     track_inliers: BoolArray
     rms_px: float
+    from_prediction: bool = False
 
 
 def _basis(a: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -199,6 +205,58 @@ def sphere_directions(n: int) -> FloatArray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
+def _grid_costs(x: FloatArray, y: FloatArray, theta: FloatArray, directions: FloatArray,
+                focal: float, config: RigidAxisConfig) -> tuple[FloatArray, FloatArray]:
+    """Each trial axis's best truncated Sampson cost (D,) (normalized units^2) and its proposal p (D, 3).
+
+    Args:
+        x: (L, 3) first rays (u, v, 1) of the tracks, normalized camera coordinates.
+        y: (L, 3) last rays likewise.
+        theta: (L,) rad, each track's joint turn from its first to its last frame.
+        directions: (D, 3) unit trial axes.
+        focal: mean focal length, px.
+        config: ``ransac_px``, the truncation of each track's Sampson distance, px.
+
+    For axis ``a`` and track ``l`` (rotation R_l by theta_l about a, M_l = I - R_l) the epipolar
+    constraint of a proposal p is ``t . v_l = p . g_l`` with t = M_l p, v_l = R_l x_l x y_l,
+    g_l = M_l^T v_l, and the Sampson denominator ``|(t x R_l x_l)_xy|^2 + |(R_l^T (t x y_l))_xy|^2``
+    is the quadratic form p^T G_l p, G_l = E_l^T E_l + F_l^T F_l with E_l = ([R_l x_l]x M_l)_xy and
+    F_l = (R_l^T [y_l]x M_l)_xy: every (proposal, track) pair costs two 3- and 6-term dot products.
+    """
+    threshold = (config.ransac_px / focal) ** 2
+    costs = np.empty(directions.shape[0])
+    points = np.empty_like(directions)
+    c, s = np.cos(theta)[None, :, None, None], np.sin(theta)[None, :, None, None]
+    iu, ju = np.triu_indices(3)
+    for lo in range(0, directions.shape[0], _GRID_CHUNK):
+        a = directions[lo:lo + _GRID_CHUNK]  # (A, 3)
+        R = c * np.eye(3) + s * _skew(a)[:, None] + (1.0 - c) * np.einsum("ai,aj->aij", a, a)[:, None]  # (A, L, 3, 3)
+        M = np.eye(3) - R
+        Rx = np.einsum("alij,lj->ali", R, x)
+        v = np.cross(Rx, y)  # the constraint t . v = 0 of each track, t = (I - R) p
+        g = np.einsum("alji,alj->ali", M, v)  # (I - R)^T v: p . g = 0
+        p = np.cross(a[:, None, :], g)  # (A, L, 3) each track's proposal, perpendicular to a and g
+        p /= np.maximum(np.linalg.norm(p, axis=2, keepdims=True), 1e-300)
+        EF = np.concatenate([_skew(Rx)[..., :2, :] @ M,  # E (A, L, 2, 3) over F
+                             np.swapaxes(R[..., :2], -1, -2) @ (_skew(y) @ M)], axis=-2)
+        # p^T G p as 6 products: G's diagonal once, its off-diagonal pairs twice
+        G6 = np.einsum("...ki,...ki->...i", EF[..., iu], EF[..., ju]) * np.where(iu == ju, 1.0, 2.0)
+        pp = p[..., iu] * p[..., ju]  # (A, L proposals, 6)
+        num = p @ np.swapaxes(g, 1, 2)  # (A, L proposals, L tracks)
+        den = pp @ np.swapaxes(G6, 1, 2)
+        sampson = num ** 2 / np.maximum(den, 1e-300)
+        cost = np.sum(np.minimum(sampson, threshold), axis=2)  # (A, L proposals)
+        best = np.argmin(cost, axis=1)
+        pick = np.arange(a.shape[0])
+        costs[lo:lo + _GRID_CHUNK] = cost[pick, best]
+        points[lo:lo + _GRID_CHUNK] = p[pick, best]
+    return costs, points
+
+
+#: Trial axes per batch of ``_grid_costs`` (memory: about 100 * chunk * L^2 bytes).
+_GRID_CHUNK = 256
+
+
 def _grid_starts(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
                  config: RigidAxisConfig) -> list[tuple[FloatArray, FloatArray]]:
     """Starting (a, p) pairs from an exhaustive search over axis directions (best first).
@@ -209,38 +267,17 @@ def _grid_starts(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     them is known (the joint's turn), and the rigid motion's translation ``(I - R) p`` with ``p``
     perpendicular to ``a`` leaves one unknown, ``p``'s direction in that plane, which one track's
     epipolar constraint fixes. So every track proposes a ``p``; each proposal is scored by the Sampson
-    distances (px, truncated at ``config.ransac_px``) of all tracks, and the trial axis keeps its best.
-    The axes with the lowest truncated cost, at least 15 degrees apart, are the starts.
+    distances (px, truncated at ``config.ransac_px``) of all tracks (``_grid_costs``), and the trial
+    axis keeps its best. The axes with the lowest truncated cost, at least 15 degrees apart, are the starts.
     """
     turn = np.array([d[-1] - d[0] for d in deltas])
     use = np.flatnonzero(np.abs(turn) >= config.min_pair_angle)
     if config.grid_directions == 0 or use.shape[0] < config.min_tracks:
         return []
-    theta = turn[use]
     x = np.column_stack([np.array([uv[t][0] for t in use]), np.ones(use.shape[0])])  # (L, 3) first rays
     y = np.column_stack([np.array([uv[t][-1] for t in use]), np.ones(use.shape[0])])  # (L, 3) last rays
     directions = sphere_directions(config.grid_directions)
-    threshold = (config.ransac_px / focal) ** 2
-    costs = np.empty(directions.shape[0])
-    points = np.empty_like(directions)
-    c, s = np.cos(theta)[None, :, None, None], np.sin(theta)[None, :, None, None]
-    for lo in range(0, directions.shape[0], 64):
-        a = directions[lo:lo + 64]  # (A, 3)
-        R = c * np.eye(3) + s * _skew(a)[:, None] + (1.0 - c) * np.einsum("ai,aj->aij", a, a)[:, None]  # (A, L, 3, 3)
-        Rx = np.einsum("alij,lj->ali", R, x)
-        v = np.cross(Rx, y)  # the constraint t . v = 0 of each track, t = (I - R) p
-        g = v - np.einsum("alji,alj->ali", R, v)  # (I - R)^T v: p . g = 0
-        p = np.cross(a[:, None, :], g)  # (A, L, 3) each track's proposal, perpendicular to a and g
-        p /= np.maximum(np.linalg.norm(p, axis=2, keepdims=True), 1e-300)
-        t = p[:, :, None, :] - np.einsum("amij,alj->almi", R, p)  # (A, L proposals, L tracks, 3)
-        num = np.einsum("almi,ami->alm", t, v)
-        ex = np.cross(t, Rx[:, None])[..., :2]
-        ety = -np.einsum("amji,almj->almi", R, np.cross(t, y[None, None]))[..., :2]
-        sampson = num ** 2 / np.maximum(np.sum(ex ** 2, axis=-1) + np.sum(ety ** 2, axis=-1), 1e-300)
-        cost = np.sum(np.minimum(sampson, threshold), axis=2)  # (A, L)
-        best = np.argmin(cost, axis=1)
-        costs[lo:lo + 64] = cost[np.arange(a.shape[0]), best]
-        points[lo:lo + 64] = p[np.arange(a.shape[0]), best]
+    costs, points = _grid_costs(x, y, turn[use], directions, focal, config)
     starts: list[tuple[FloatArray, FloatArray]] = []
     for k in np.argsort(costs):
         if not any(directions[k] @ a > np.cos(np.radians(15.0)) for a, _ in starts):
@@ -654,7 +691,8 @@ def _fit_from_start(uv: list[FloatArray], deltas: list[FloatArray], a: FloatArra
 
 def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
                    config: RigidAxisConfig | None = None,
-                   starts: list[tuple[FloatArray, FloatArray]] | None = None) -> RigidAxisFit:
+                   starts: list[tuple[FloatArray, FloatArray]] | None = None,
+                   predicted: tuple[FloatArray, FloatArray] | None = None) -> RigidAxisFit:
     """Fit one rotation by known angles about an unknown line to all tracks of a motion.
 
     Args:
@@ -665,6 +703,11 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         starts: more starting guesses (axis (3,) unit, a point of the axis (3,)), e.g. the conic
             front end's, tried before the relative poses; the fit keeps whichever start ends with the
             lowest truncated cost (and tries no more once one keeps ``enough_inlier_fraction``).
+        predicted: the axis (3,) unit and a point of it (3,), camera frame, that a camera pose predicts
+            (e.g. ``R_camera_base @ axis_base`` and ``T_camera_base @ point_base``), tried before anything
+            else: when its fit stays within ``config.predicted_angle`` of it and keeps ``min_inlier_fraction``
+            of the fit tracks, that fit is taken and no other start (nor the searches) is tried; else it is
+            set aside and the starts above decide, as without it. The fit is still the tracks' own.
 
     Returns:
         The axis, the axis point at unit distance, per-track residuals and inliers.
@@ -689,12 +732,7 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     deltas = [all_deltas[t][k] for t, k in zip(fit_set, picks, strict=True)]
     n_fit = len(fit_set)
     angles, frames = _frame_table(deltas)
-    guesses = []
-    for a, p in starts or []:
-        a = np.asarray(a, dtype=np.float64) / np.linalg.norm(a)
-        p = np.asarray(p, dtype=np.float64) - a * (a @ p)
-        if np.linalg.norm(p) > 1e-9:
-            guesses.append((a, p / np.linalg.norm(p)))
+    guesses = _line_starts(starts or [])
 
     def candidates():  # the given starts first, then the searches (only if those are not enough)
         yield from guesses
@@ -702,7 +740,13 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         yield from _relative_pose(uv, frames, angles, focal, config)
 
     best = None
-    for a0, p0 in candidates():
+    for a0, p0 in _line_starts([predicted] if predicted is not None else []):
+        fit = _fit_from_start(uv, deltas, a0, p0, focal, config, noise_px)
+        if (fit[5] >= max(config.min_tracks, config.min_inlier_fraction * n_fit)
+                and fit[1] @ a0 >= np.cos(config.predicted_angle)):
+            best = fit
+    from_prediction = best is not None
+    for a0, p0 in candidates() if best is None else ():
         fit = _fit_from_start(uv, deltas, a0, p0, focal, config, noise_px)
         if best is None or fit[0] < best[0]:
             best = fit
@@ -725,15 +769,31 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     if not axis_std <= config.max_axis_std:
         raise DegenerateMotionError(
             f"rigid front end: the tracks do not fix the axis (1-sigma {axis_std:.3f} rad > {config.max_axis_std})")
-    return RigidAxisFit(a, p, axis_std, track_rms, keep, rms_in)
+    return RigidAxisFit(a, p, axis_std, track_rms, keep, rms_in, from_prediction)
+
+
+def _line_starts(lines: list[tuple[FloatArray, FloatArray]]) -> list[tuple[FloatArray, FloatArray]]:
+    """Starts (a (3,) unit, p (3,) unit and perpendicular to a) from axes (3,) and points (3,) of them.
+
+    A line through the camera centre (no perpendicular offset) gives no start.
+    """
+    out = []
+    for a, p in lines:
+        a = np.asarray(a, dtype=np.float64) / np.linalg.norm(a)
+        p = np.asarray(p, dtype=np.float64) - a * (a @ p)
+        if np.linalg.norm(p) > 1e-9:
+            out.append((a, p / np.linalg.norm(p)))
+    return out
 
 
 def rigid_axis_of_motion(obs: MotionObservation, intrinsics: CameraIntrinsics,
                          config: RigidAxisConfig | None = None,
-                         starts: list[tuple[FloatArray, FloatArray]] | None = None) -> RigidAxisFit:
+                         starts: list[tuple[FloatArray, FloatArray]] | None = None,
+                         predicted: tuple[FloatArray, FloatArray] | None = None) -> RigidAxisFit:
     """``fit_rigid_axis`` on a motion's tracks in pixels (undistorted through the intrinsics)."""
     uv = [normalized_from_pixels(t.pixels, intrinsics) for t in obs.tracks]
-    return fit_rigid_axis(uv, [t.delta for t in obs.tracks], float(np.mean(intrinsics.focal)), config, starts)
+    return fit_rigid_axis(uv, [t.delta for t in obs.tracks], float(np.mean(intrinsics.focal)), config, starts,
+                          predicted)
 
 
 def geometry_from_rigid_fit(fit: RigidAxisFit) -> MotionGeometry:

@@ -95,6 +95,32 @@ def test_the_rigid_front_end_gives_axes_and_drops_outlier_tracks():
     assert cal.state.stage == "refined" and rot < NOISY_ROT and trans < NOISY_TRANS
 
 
+def test_the_refined_pose_predicts_the_rigid_front_ends_start():
+    """Once there is a refined pose, the rigid front end starts from the axis it predicts and skips its searches;
+    off, no motion does; both end at an accurate pose, and the motions before the first pose never do."""
+    rng = np.random.default_rng(4)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.3, outlier_fraction=0.1, tracks_per_motion=25),
+                           rng)
+    observations = [scene.random_motion(rng).observation for _ in range(8)]
+    runs = {}
+    for on in (True, False):
+        cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(predicted_start=on))
+        first_pose = None
+        for k, obs in enumerate(observations):
+            cal.add_motion(obs)
+            first_pose = k if first_pose is None and cal.state.stage == "refined" else first_pose
+        runs[on] = cal
+        assert first_pose is not None and first_pose < 7
+        assert not any(r.rigid_predicted for r in cal.reports[:first_pose + 1])
+        rot, trans = pose_errors(cal.state.T_camera_base, T)
+        assert rot < NOISY_ROT and trans < NOISY_TRANS
+    predicted = [r.rigid_predicted for r in runs[True].reports]
+    assert sum(predicted) >= 3, [(r.front_end, r.rigid_predicted) for r in runs[True].reports]
+    assert not any(r.rigid_predicted for r in runs[False].reports)
+    assert [r.front_end for r in runs[True].reports] == [r.front_end for r in runs[False].reports]
+
+
 def test_same_input_gives_identical_estimates():
     a, _ = _episode(3, 5, SyntheticConfig(tracks_per_motion=15))
     b, _ = _episode(3, 5, SyntheticConfig(tracks_per_motion=15))

@@ -9,12 +9,14 @@ import pytest
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+import solver.rigid_axis as rigid_axis_module
 from solver.camera import normalized_from_pixels
 from solver.errors import DegenerateMotionError, InvalidInputError
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
 from solver.rigid_axis import (
     RigidAxisConfig,
     _ArrowSystem,
+    _grid_costs,
     _grid_starts,
     _refine,
     _residuals,
@@ -260,6 +262,42 @@ def test_the_grid_search_starts_near_the_axis_with_half_the_tracks_sliding(seed)
         assert all(_angle(a, b) > np.radians(15.0) for b, _ in starts[:i])
 
 
+def _sampson_by_essential_matrix(x, y, R, t):
+    """Sampson distance (normalized units^2) of the rays x -> y (3,) under E = [t]x R, written out."""
+    t_cross = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    E = t_cross @ R
+    Ex, Ety = E @ x, E.T @ y
+    return float((y @ E @ x) ** 2 / (Ex[0] ** 2 + Ex[1] ** 2 + Ety[0] ** 2 + Ety[1] ** 2))
+
+
+def test_the_grid_costs_match_essential_matrices_built_track_by_track():
+    """Each trial axis's cost against the definition: every track's p from the null space of [a; its epipolar
+    row], every proposal scored by explicit essential matrices of every track, truncated, the best kept."""
+    obs, axis = _far_scene(0)
+    uv = [normalized_from_pixels(t.pixels, CAMERA) for t in obs.tracks]
+    x = np.array([np.append(u[0], 1.0) for u in uv])
+    y = np.array([np.append(u[-1], 1.0) for u in uv])
+    theta = np.array([t.delta[-1] - t.delta[0] for t in obs.tracks])
+    config = RigidAxisConfig(ransac_px=2.0)
+    threshold = (config.ransac_px / 1380.0) ** 2
+    directions = np.vstack([axis, sphere_directions(300)[::37]])  # the true axis and 9 others
+    costs, points = _grid_costs(x, y, theta, directions, 1380.0, config)
+    for a, cost, point in zip(directions, costs, points, strict=True):
+        Rs = [Rotation.from_rotvec(th * a).as_matrix() for th in theta]
+        proposals = []
+        for R, xl, yl in zip(Rs, x, y, strict=True):
+            row = (np.eye(3) - R).T @ np.cross(R @ xl, yl)  # (I - R) p . (R x cross y) = 0
+            proposals.append(np.linalg.svd(np.array([a, row]))[2][-1])
+        totals = [sum(min(_sampson_by_essential_matrix(xl, yl, R, (np.eye(3) - R) @ p), threshold)
+                      for R, xl, yl in zip(Rs, x, y, strict=True)) for p in proposals]
+        assert cost == pytest.approx(min(totals), rel=1e-9)
+        # the kept proposal is a best one (up to sign: p and -p give the same costs)
+        best = [p for p, total in zip(proposals, totals, strict=True) if total <= min(totals) * (1 + 1e-9)]
+        assert min(min(np.linalg.norm(point - p), np.linalg.norm(point + p)) for p in best) < 1e-9
+    # not a comparison of truncation constants: the true axis explains the rigid half of the tracks
+    assert np.argmin(costs) == 0 and costs[0] < 0.7 * np.min(costs[1:])
+
+
 def test_a_far_camera_with_sliding_tracks_still_gives_the_axis():
     """Seed 1: no frame pair's essential matrix finds the rigid motion; the grid search's start does."""
     obs, axis = _far_scene(1)
@@ -269,6 +307,64 @@ def test_a_far_camera_with_sliding_tracks_still_gives_the_axis():
     assert RigidAxisConfig(grid_directions=0).grid_directions == 0
     with pytest.raises(InvalidInputError, match="grid_directions"):
         RigidAxisConfig(grid_directions=-1)
+
+
+def _count_searches(monkeypatch) -> dict[str, int]:
+    """Count the calls of both start searches (they still run)."""
+    calls = {"grid": 0, "relative": 0}
+    for name, key in (("_grid_starts", "grid"), ("_relative_pose", "relative")):
+        original = getattr(rigid_axis_module, name)
+
+        def counted(*args, _original=original, _key=key):
+            calls[_key] += 1
+            return _original(*args)
+
+        monkeypatch.setattr(rigid_axis_module, name, counted)
+    return calls
+
+
+def _tilted(axis: np.ndarray, angle: float) -> np.ndarray:
+    """``axis`` (3,) unit turned by ``angle`` rad about a perpendicular direction."""
+    return Rotation.from_rotvec(angle * np.cross(axis, [0.0, 0.0, 1.0]) / np.linalg.norm(np.cross(axis, [0, 0, 1.0])))\
+        .apply(axis)
+
+
+def test_a_right_predicted_start_is_fitted_and_no_search_runs(monkeypatch):
+    """Half the tracks slide; the prediction is 1.5 deg and 1.4 cm off: the tracks' own fit from it is taken."""
+    obs, axis = _far_scene(0)
+    calls = _count_searches(monkeypatch)
+    searched = rigid_axis_of_motion(obs, CAMERA)
+    assert calls["grid"] == 1 and not searched.from_prediction
+    searched_relative = calls["relative"]
+    point = searched.point_cam * 2.1  # the searched line at about the scene's depth, m
+    predicted = (_tilted(axis, np.radians(1.5)), point + np.array([0.01, -0.01, 0.0]))
+    fit = rigid_axis_of_motion(obs, CAMERA, predicted=predicted)
+    assert fit.from_prediction and calls["grid"] == 1  # no search ran this time
+    assert calls["relative"] == searched_relative
+    assert _angle(fit.axis_cam, axis) < np.radians(1.0)
+    assert _angle(fit.axis_cam, searched.axis_cam) < np.radians(0.3)
+    # the rigid tracks kept, the sliding ones dropped, as the search's fit does (borderline ones aside)
+    assert fit.track_inliers[:20].sum() >= 18 and np.sum(fit.track_inliers != searched.track_inliers) <= 2
+
+
+@pytest.mark.parametrize("wrong_by", [np.radians(60.0), np.pi])  # a turned axis; the opposite one
+def test_a_wrong_predicted_start_falls_back_to_the_search(monkeypatch, wrong_by):
+    obs, axis = _far_scene(1)  # seed 1: only the grid search finds the rigid motion
+    calls = _count_searches(monkeypatch)
+    predicted = (_tilted(axis, wrong_by), np.array([0.1, 0.0, 2.0]))
+    fit = rigid_axis_of_motion(obs, CAMERA, predicted=predicted)
+    assert not fit.from_prediction and calls["grid"] == 1
+    assert _angle(fit.axis_cam, axis) < np.radians(1.0)
+    assert fit.track_inliers[:20].sum() >= 18 and fit.track_inliers[20:].sum() <= 2
+    # the search decides as without a prediction: the same fit
+    plain = rigid_axis_of_motion(obs, CAMERA)
+    np.testing.assert_array_equal(fit.axis_cam, plain.axis_cam)
+    np.testing.assert_array_equal(fit.track_inliers, plain.track_inliers)
+
+
+def test_the_predicted_angle_is_checked():
+    with pytest.raises(InvalidInputError, match="predicted_angle"):
+        RigidAxisConfig(predicted_angle=0.0)
 
 
 def test_the_track_threshold_follows_the_tracks_noise():
