@@ -19,6 +19,7 @@ from solver.refinement import (
     clustered_pose_covariance,
     conservative_covariance,
     motion_jackknife_covariance,
+    motion_overdispersion,
     pose_covariance,
     pose_information,
     refine,
@@ -553,3 +554,25 @@ def test_time_offset_estimate_needs_velocities_and_stays_within_its_bound():
         refine(build_track_set(scene.motions, FOCAL), T_init, RefinementConfig(time_offset_bound_s=0.01))
     with pytest.raises(InvalidInputError, match="time_offset_bound_s must be > 0"):
         RefinementConfig(time_offset_bound_s=0.0)
+
+
+def test_motion_overdispersion_is_chi_square_with_independent_noise_and_large_with_shared_errors():
+    """Linear least squares, M clusters: scores follow the model's spread unless a cluster shares an error."""
+    rng = np.random.default_rng(13)
+    n, M, sigma = 6, 12, 0.5
+    A = [rng.normal(size=(40, n)) for _ in range(M)]
+    H = np.array([a.T @ a for a in A])
+    S = H.sum(axis=0)
+
+    def q_over_dof(shared: float) -> float:
+        values = []
+        for _ in range(200):
+            y = [a @ np.ones(n) + rng.normal(0, sigma, len(a)) + rng.normal(0, shared) * a[:, 0] for a in A]
+            x_hat = np.linalg.solve(S, sum(a.T @ b for a, b in zip(A, y, strict=True)))
+            g = np.array([a.T @ (a @ x_hat - b) for a, b in zip(A, y, strict=True)])
+            q, dof = motion_overdispersion(H, g, S, sigma**2)
+            values.append(q / dof)
+        return float(np.mean(values))
+
+    assert q_over_dof(0.0) == pytest.approx(1.0, abs=0.1)  # chi-square: its mean is its degrees of freedom
+    assert q_over_dof(0.5) > 3.0  # each cluster's own error along one regressor: far more spread
