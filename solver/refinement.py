@@ -731,8 +731,11 @@ def motion_overdispersion(information: FloatArray, gradient: FloatArray, S: Floa
         information: (M, n, n) each motion's information H_m, px^2 per parameter^2.
         gradient: (M, n) each motion's score g_m at the optimum.
         S: (n, n) the total information, positive definite.
-        sigma2: px^2, the pixel noise variance.
+        sigma2: px^2, the pixel noise variance; (0.0, 0) when it is not positive (noise-free residuals
+            carry no evidence of spread).
     """
+    if not sigma2 > 0:
+        return 0.0, 0
     w, V = np.linalg.eigh(0.5 * (S + S.T))
     S_ih = (V / np.sqrt(w)) @ V.T
     q, dof = 0.0, 0

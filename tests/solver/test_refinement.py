@@ -576,3 +576,8 @@ def test_motion_overdispersion_is_chi_square_with_independent_noise_and_large_wi
 
     assert q_over_dof(0.0) == pytest.approx(1.0, abs=0.1)  # chi-square: its mean is its degrees of freedom
     assert q_over_dof(0.5) > 3.0  # each cluster's own error along one regressor: far more spread
+
+
+def test_motion_overdispersion_without_noise_has_no_terms():
+    H = np.array([np.eye(3), 2 * np.eye(3)])
+    assert motion_overdispersion(H, np.zeros((2, 3)), H.sum(axis=0), 0.0) == (0.0, 0)
