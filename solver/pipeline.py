@@ -288,6 +288,13 @@ FAMILY_SAME_CHI2 = 22.46
 FAMILY_MARGIN = 0.1
 
 
+def _geometric_std(refined: RefinementResult) -> FloatArray:
+    """(6,) the refined pose's 1-sigmas (rad, m) before the motion jackknife; NaN where a variance is negative."""
+    covariance = refined.covariance if refined.sandwich_covariance is None else refined.sandwich_covariance
+    with np.errstate(invalid="ignore"):
+        return np.sqrt(np.diag(covariance))
+
+
 def _fit_score(tracks: TrackSet, refined: RefinementResult, cap_px: float) -> float:
     """How well a refinement fits all of ``tracks``, px^2 (comparable between refinements of the same tracks).
 
@@ -556,7 +563,7 @@ class Calibrator:
                                        prev.robust_sigma_px or prev.sigma_px, cfg.refinement, prev.time_offset_s)
         except (ArcCalibError, np.linalg.LinAlgError):
             return None
-        if not self._fixes_pose(refined.covariance):
+        if not self._fixes_pose(refined):
             return None
         moved = max(float(np.sqrt(max(xi @ self._lin_information[j] @ xi, 0.0))) for j, xi in
                     zip(self._refined_live, (pose_difference(m.T_lin, refined.T_camera_base)
@@ -570,10 +577,14 @@ class Calibrator:
         self._since_batch += 1
         return refined
 
-    def _fixes_pose(self, covariance: FloatArray) -> bool:
-        """Whether a pose covariance (6, 6) has every 1-sigma finite and within the ``max_std_*`` bounds."""
-        with np.errstate(invalid="ignore"):  # a negative variance gives NaN: not finite
-            std = np.sqrt(np.diag(covariance))
+    def _fixes_pose(self, refined: RefinementResult) -> bool:
+        """Whether the motions fix the refined pose: every 1-sigma finite and within the ``max_std_*`` bounds.
+
+        Judged on the covariance before the motion jackknife (``RefinementResult.sandwich_covariance``):
+        with a few motions the jackknife measures how much they disagree, not what they leave free, and it
+        would hold back a pose the geometry fixes. The reported covariance and convergence keep it.
+        """
+        std = _geometric_std(refined)
         return bool(np.all(np.isfinite(std)) and np.all(std[:3] <= self.config.max_std_rotation)
                     and np.all(std[3:] <= self.config.max_std_translation))
 
@@ -593,9 +604,8 @@ class Calibrator:
         except np.linalg.LinAlgError:  # numpy's words ("leading minor not positive definite") mean nothing here
             return None, ("refinement failed: its equations are singular (tracks or motions that leave a point "
                           "or the pose free)"), False
-        if not self._fixes_pose(refined.covariance):
-            with np.errstate(invalid="ignore"):
-                std = np.sqrt(np.diag(refined.covariance))
+        if not self._fixes_pose(refined):
+            std = _geometric_std(refined)
             return None, (f"the motions do not fix the pose: 1-sigma uncertainty "
                           f"{np.round(std, 4).tolist()} (rad, m) is too large"), True
         return refined, "", True

@@ -368,6 +368,12 @@ class RefinementResult:
             ``covariance`` is then the pose block of the (7, 7) one: s marginalized); None likewise.
         time_offset_correlation: (6,) the correlation of s with each of (omega, tau) in that
             covariance; None likewise. Near +-1 the tracks cannot tell s from a pose change.
+        summaries: each motion's summary (``refine_increment``); empty from a backend without them.
+        robust_sigma_px: the robust pass's pixel sigma, the outlier scale later updates reuse.
+        sandwich_covariance: (6, 6) ``covariance`` before the motion jackknife (``summaries_covariance``):
+            whether the geometry fixes the pose is judged on it (``Calibrator``), since from a few motions
+            the jackknife measures how much they disagree rather than what they leave free; None when
+            the backend gives only one.
     """
 
     T_camera_base: FloatArray
@@ -381,6 +387,7 @@ class RefinementResult:
     time_offset_correlation: FloatArray | None = None
     summaries: tuple[MotionSummary, ...] = ()
     robust_sigma_px: float | None = None
+    sandwich_covariance: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -656,8 +663,9 @@ def summaries_prior(summaries: Sequence[MotionSummary], T0: FloatArray, s0: floa
 
 def summaries_covariance(summaries: Sequence[MotionSummary], prior_row: FloatArray | None = None,
                          T0: FloatArray | None = None, s0: float | None = None,
-                         motion_clusters: bool = True, motion_jackknife: bool = True) -> tuple[FloatArray, float]:
-    """The conservative pose covariance (n, n) of all ``summaries`` (``refine``'s), and the residual sigma, px.
+                         motion_clusters: bool = True, motion_jackknife: bool = True
+                         ) -> tuple[FloatArray, float, FloatArray]:
+    """The pose covariance (n, n) of all ``summaries``, the residual sigma (px) and the covariance before the jackknife.
 
     The model's covariance, enlarged where the track-clustered sandwich is larger and, with
     ``motion_clusters``, where the motion-clustered one is: S^-1 (sum_m g_m g_m^T) S^-1 with g_m motion m's
@@ -700,8 +708,9 @@ def summaries_covariance(summaries: Sequence[MotionSummary], prior_row: FloatArr
         if motion_jackknife:
             q, q_dof = motion_overdispersion(H, g, S, sigma2)
             if q_dof > 0 and q > chi2.ppf(1.0 - JACKKNIFE_TEST_LEVEL, q_dof):
-                cov = conservative_covariance(cov, dof * motion_jackknife_covariance(H, g, S))
-    return cov, float(np.sqrt(sigma2))
+                return (conservative_covariance(cov, dof * motion_jackknife_covariance(H, g, S)),
+                        float(np.sqrt(sigma2)), cov)
+    return cov, float(np.sqrt(sigma2)), cov
 
 
 #: The jackknife is taken only where the motions' scores are over-dispersed at this level (``motion_overdispersion``):
@@ -898,12 +907,13 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     fun = sol.fun[:2 * sub2.uv.shape[0]]  # the observations' residuals (the prior's is last, with s)
     raw = fun if scale is None else (fun.reshape(-1, 2) / scale[:, None]).ravel()  # px, unweighted
     summaries = _motion_summaries(problem, x, fun)
-    cov, sigma_fit = summaries_covariance(summaries, problem.prior_row(), motion_clusters=config.motion_clusters,
-                                           motion_jackknife=config.motion_jackknife)
+    cov, sigma_fit, sandwich = summaries_covariance(summaries, problem.prior_row(),
+                                                     motion_clusters=config.motion_clusters,
+                                                     motion_jackknife=config.motion_jackknife)
     cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
     inliers, all_points = kept_points(tracks.n_tracks, keep, good, pts2)
     return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))),
-                            sigma_fit, offset, offset_std, correlation, summaries, sigma)
+                            sigma_fit, offset, offset_std, correlation, summaries, sigma, sandwich[:6, :6])
 
 
 def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionSummary], sigma_px: float,
@@ -967,12 +977,13 @@ def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionS
     raw = fun if scale is None else (fun.reshape(-1, 2) / scale[:, None]).ravel()
     new = _motion_summaries(problem, x, fun)
     summaries = tuple(earlier) + new
-    cov, sigma_fit = summaries_covariance(summaries, problem.prior_row(), T, float(x[6]) if estimate else None,
-                                          config.motion_clusters, config.motion_jackknife)
+    cov, sigma_fit, sandwich = summaries_covariance(summaries, problem.prior_row(), T,
+                                                     float(x[6]) if estimate else None,
+                                                     config.motion_clusters, config.motion_jackknife)
     cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
     inliers, all_points = kept_points(tracks.n_tracks, keep, good, pts2)
     return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))),
-                            sigma_fit, offset, offset_std, correlation, summaries, sigma)
+                            sigma_fit, offset, offset_std, correlation, summaries, sigma, sandwich[:6, :6])
 
 
 def screen_start(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig, max_nfev: int,

@@ -443,3 +443,32 @@ def test_a_fisheye_focal_length_3_percent_high_is_flagged(fisheye_episode):
     check = _calibrate(replace(FISHEYE, K=K), motions).focal_check()
     # measured: best at 0.963 (1 / 1.03 = 0.971), RMS 0.035 px there against 0.108 px at the given K
     assert check is not None and not check.fits and 0.95 < check.best_scale < 0.98
+
+
+def test_the_motions_fix_the_pose_is_judged_before_the_motion_jackknife():
+    """Each sweep's tracks all shifted by one ~2 px offset: the motions disagree beyond the pixel noise, so the
+    reported covariance takes the leave-one-motion-out jackknife; whether a pose is given is judged without it."""
+    rng = np.random.default_rng(41)
+    scene = SyntheticScene(PANDA, K, sample_camera_pose(rng),
+                           SyntheticConfig(noise_px=0.3, outlier_fraction=0.0, tracks_per_motion=20), rng)
+    observations = []
+    for _ in range(8):
+        obs = scene.random_motion(rng).observation
+        shift = rng.normal(0.0, 2.0, 2)
+        observations.append(replace(obs, tracks=tuple(replace(t, pixels=t.pixels + shift) for t in obs.tracks)))
+
+    def run(config):
+        cal = Calibrator(K, PANDA.axis_and_point, config)
+        for obs in observations:
+            cal.add_motion(obs)
+        return cal
+
+    free = run(CalibratorConfig(family_start=False))
+    assert free.state.stage == "refined"
+    reported = float(np.max(free.state.std[3:]))
+    geometric = float(np.max(np.sqrt(np.diag(free._refined.sandwich_covariance))[3:]))
+    assert reported > 1.5 * geometric  # the jackknife was taken and widens the 1-sigma (seen: 5.5 mm, 2.0 mm)
+    bound = 0.5 * (reported + geometric)  # between the two: the geometry fixes the pose to it, the report does not
+    bounded = run(CalibratorConfig(family_start=False, max_std_translation=bound))
+    assert bounded.state.stage == "refined"
+    assert np.max(bounded.state.std[3:]) > bound  # the reported 1-sigma keeps the jackknife

@@ -253,3 +253,6 @@ def test_motion_clusters_widen_the_covariance_when_errors_are_shared_by_a_sweep(
     assert chi2(sandwich) < chi2(plain) / 3  # ... the motion-clustered sandwich far less so (seen: 430 -> 92) ...
     assert chi2(sandwich) > 22.46  # ... but from 8 motions it is still too small ...
     assert chi2(clustered) < 22.46  # ... and with the leave-one-motion-out jackknife it holds it (seen: 10.9)
+    # Whether the motions fix the pose is judged without the jackknife: the result carries that covariance too.
+    np.testing.assert_allclose(clustered.sandwich_covariance, sandwich.covariance, rtol=1e-9, atol=1e-18)
+    np.testing.assert_allclose(sandwich.sandwich_covariance, sandwich.covariance, rtol=1e-12)
