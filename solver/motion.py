@@ -124,48 +124,155 @@ class MotionGeometry:
 
 @dataclass(frozen=True)
 class _Points:
-    rays: FloatArray  # (P, 3)
-    delta: FloatArray  # (P,)
-    ids: NDArray[np.int64]  # (P,) slot of the trajectory among the usable ones
+    """The usable trajectories' points, concatenated trajectory after trajectory.
+
+    Attributes:
+        rays: (P, 3) rays (u, v, 1), camera frame.
+        delta: (P,) rad, the joint's turn at each point.
+        ids: (P,) slot of the trajectory among the usable ones (non-decreasing).
+        n: number of trajectories.
+        rays_t: (3, P) ``rays`` transposed (contiguous).
+        first: (n,) index of each trajectory's first point; counts: (n,) its number of points.
+        phase: (P,) complex exp(i delta).
+        sums: (n,) complex, each trajectory's sum of ``phase``.
+        good: (n,) bool: the trajectory's phase-circle fit is well posed (its delta changes).
+        det: (n,) the fit's determinant (1 where not ``good``).
+    """
+
+    rays: FloatArray
+    delta: FloatArray
+    ids: NDArray[np.int64]
     n: int
+    rays_t: FloatArray
+    first: NDArray[np.int64]
+    counts: NDArray[np.int64]
+    phase: NDArray[np.complex128]
+    sums: NDArray[np.complex128]
+    good: BoolArray
+    det: FloatArray
 
 
 def _gather(rays: list[FloatArray], deltas: list[FloatArray], slots: list[int]) -> _Points:
-    ids = np.concatenate([np.full(rays[s].shape[0], k) for k, s in enumerate(slots)])
-    return _Points(np.concatenate([rays[s] for s in slots]), np.concatenate([deltas[s] for s in slots]),
-                   ids.astype(np.int64), len(slots))
+    ids = np.concatenate([np.full(rays[s].shape[0], k) for k, s in enumerate(slots)]).astype(np.int64)
+    delta = np.concatenate([deltas[s] for s in slots])
+    counts = np.array([rays[s].shape[0] for s in slots], dtype=np.int64)
+    first = np.concatenate([[0], np.cumsum(counts[:-1])]).astype(np.int64)
+    phase = np.exp(1j * delta)
+    sums = np.add.reduceat(phase, first)
+    n = counts.astype(np.float64)
+    det = n * n - np.abs(sums) ** 2  # fit_phase_circles's normal equations, fixed by delta alone
+    good = det > 1e-12 * np.maximum(n * n, 1.0)
+    all_rays = np.concatenate([rays[s] for s in slots])
+    return _Points(all_rays, delta, ids, len(slots), np.ascontiguousarray(all_rays.T), first, counts, phase, sums,
+                   good, np.where(good, det, 1.0))
 
 
 def _circles(points: _Points, axis: FloatArray) -> PhaseCircles:
     return fit_phase_circles(project_to_plane(points.rays, axis), points.delta, points.ids, points.n)
 
 
-def _image_residuals(points: _Points, axis: FloatArray) -> FloatArray:
-    """Image-space misfit (P, 2), normalized units, of the phase circles fitted on sigma.
+def _phase_model(points: _Points, z: NDArray[np.complex128]) -> NDArray[np.complex128]:
+    """The phase circles' model points (K, P) fitted to plane coordinates z (K, P), u + i v, row by row.
+
+    ``fit_phase_circles``'s closed form (c + gamma exp(i delta) per trajectory), whose unknowns are
+    linear in z: applied to a derivative of z it gives the model's derivative.
+    """
+    Z1 = np.add.reduceat(z, points.first, axis=1)  # (K, n)
+    Z2 = np.add.reduceat(points.phase.conj() * z, points.first, axis=1)
+    n, S = points.counts.astype(np.float64), points.sums
+    c = np.where(points.good, (n * Z1 - S * Z2) / points.det, Z1 / np.maximum(n, 1))
+    gamma = np.where(points.good, (n * Z2 - np.conj(S) * Z1) / points.det, 0)
+    return np.repeat(c, points.counts, axis=1) + np.repeat(gamma, points.counts, axis=1) * points.phase
+
+
+@dataclass(frozen=True)
+class _ImageFit:
+    """The phase circles of one axis mapped back to the image (``_image_fit``).
+
+    Attributes:
+        axis: (3,) unit axis a; e1, e2: (3,) sigma's basis (``plane_basis``).
+        z: (P,) complex plane coordinates u + i v of the points; model: (P,) complex, the circles' points.
+        Y: (3, P) the model points on sigma, camera frame.
+        residuals: (2, P) normalized units, model image minus observed (x row, y row).
+    """
+
+    axis: FloatArray
+    e1: FloatArray
+    e2: FloatArray
+    z: NDArray[np.complex128]
+    model: NDArray[np.complex128]
+    Y: FloatArray
+    residuals: FloatArray
+
+
+def _image_fit(points: _Points, axis: FloatArray) -> _ImageFit:
+    """The phase circles fitted on sigma (the plane a . X = 1) and their image-space misfit.
 
     The circles are fitted on sigma in closed form; their model points are mapped back to the
     image through the camera centre, so the misfit is measured where the noise lives.
     """
-    plane = project_to_plane(points.rays, axis)
-    circles = fit_phase_circles(plane, points.delta, points.ids, points.n)
-    phase = np.exp(1j * (points.delta + circles.phases[points.ids])) * circles.radii[points.ids]
-    model = circles.centres[points.ids] + np.column_stack([phase.real, phase.imag])
     e1, e2 = plane_basis(axis)
-    Y = axis[None, :] + model[:, :1] * e1 + model[:, 1:] * e2
-    return Y[:, :2] / Y[:, 2:] - points.rays[:, :2]
+    frame = np.array([axis, e1, e2])  # (3, 3) rows a, e1, e2
+    w = frame @ points.rays_t  # (3, P): depth along a, then e1, e2
+    z = (w[1] + 1j * w[2]) / w[0]
+    m = _phase_model(points, z[None])[0]
+    Y = frame.T @ np.array([np.ones_like(m.real), m.real, m.imag])  # a + Re(m) e1 + Im(m) e2
+    return _ImageFit(axis, e1, e2, z, m, Y, Y[:2] / Y[2] - points.rays_t[:2])
+
+
+def _image_residuals(points: _Points, axis: FloatArray) -> FloatArray:
+    """Image-space misfit (P, 2), normalized units, of the phase circles fitted on sigma (``_image_fit``)."""
+    return _image_fit(points, axis).residuals.T
+
+
+def _image_jacobian(points: _Points, fit: _ImageFit, d_axis: FloatArray) -> FloatArray:
+    """Derivatives (2, P, J) of ``fit``'s residuals along d_axis (J, 3), derivatives of its unit axis (perpendicular).
+
+    The misfit does not depend on sigma's in-plane basis (turning it turns the coordinates, the circles and
+    their model points alike), so the basis is carried along the axis without turning (de1 = -(e1 . da) a):
+    a point X = ray / (ray . a) = a + u e1 + v e2 of sigma moves by dz = -Re(z conj(zeta)) z - zeta in
+    z = u + i v, zeta = (e1 + i e2) . da; the model points by the fit of dz (the fit is linear), and
+    Y = a + Re(m) e1 + Im(m) e2 by da + Re(dm) e1 + Im(dm) e2 - Re(m conj(zeta)) a.
+    """
+    z, m, Y = fit.z, fit.model, fit.Y
+    zeta = np.column_stack([d_axis @ fit.e1, d_axis @ fit.e2])  # (J, 2): Re, Im
+    dz = -(zeta @ np.array([z.real, z.imag])) * z - (zeta[:, 0] + 1j * zeta[:, 1])[:, None]  # (J, P)
+    dm = _phase_model(points, dz)
+    along = zeta @ np.array([m.real, m.imag])  # (J, P): Re(m conj(zeta))
+    basis = np.column_stack([fit.e1, fit.e2, fit.axis])  # (3, 3) columns e1, e2, a
+    inv_depth = 1.0 / Y[2]
+    image = Y[:2] * inv_depth  # (2, P): the model's image
+    out = np.empty((2, Y.shape[1], d_axis.shape[0]))
+    for j, da in enumerate(d_axis):
+        dY = da[:, None] + basis @ np.array([dm[j].real, dm[j].imag, -along[j]])  # (3, P)
+        out[:, :, j] = (dY[:2] - image * dY[2]) * inv_depth
+    return out
 
 
 def _refine_axis(points: _Points, axis: FloatArray) -> FloatArray:
+    """The axis (3,) unit minimizing the image misfit (``_image_fit``) from ``axis`` (3,) unit: LM over two tilts."""
     e1, e2 = plane_basis(axis)
+    tilts = np.array([e1, e2])
+    last: dict[bytes, _ImageFit] = {}  # the misfit at the last point evaluated (MINPACK's Jacobian follows it)
 
     def axis_of(theta: FloatArray) -> FloatArray:
         a = axis + theta[0] * e1 + theta[1] * e2
         return a / np.linalg.norm(a)
 
     def fun(theta: FloatArray) -> FloatArray:
-        return _image_residuals(points, axis_of(theta)).ravel()
+        fit = _image_fit(points, axis_of(theta))
+        last.clear()
+        last[theta.tobytes()] = fit
+        return fit.residuals.ravel()
 
-    sol = least_squares(fun, np.zeros(2), method="lm", x_scale=np.full(2, 1e-2))
+    def jac(theta: FloatArray) -> FloatArray:  # (2P, 2): d a / d theta_j = (I - a a^T) e_j / |axis + theta e|
+        fit = last.get(theta.tobytes())
+        if fit is None:
+            fit = _image_fit(points, axis_of(theta))
+        n = np.linalg.norm(axis + theta[0] * e1 + theta[1] * e2)
+        return _image_jacobian(points, fit, (tilts - np.outer(tilts @ fit.axis, fit.axis)) / n).reshape(-1, 2)
+
+    sol = least_squares(fun, np.zeros(2), jac=jac, method="lm", x_scale=np.full(2, 1e-2))
     return axis_of(sol.x)
 
 
