@@ -296,18 +296,26 @@ class _Tracks:
         delta: (N,) rad, the joint's turn in every frame.
         track: (N,) the track of every frame (0..T-1, non-decreasing).
         first: (T,) index of every track's first frame in the arrays above.
+        turns: (N, 3) cos(delta), sin(delta), 1 of every frame (``_rotations``'s coefficients).
     """
 
     uv: FloatArray
     delta: FloatArray
     track: NDArray[np.int64]
     first: NDArray[np.int64]
+    turns: FloatArray
 
     @staticmethod
     def of(uv: list[FloatArray], deltas: list[FloatArray]) -> _Tracks:
         n_obs = np.array([len(d) for d in deltas], dtype=np.int64)
-        return _Tracks(np.concatenate(uv), np.concatenate(deltas), np.repeat(np.arange(len(uv)), n_obs),
-                       np.concatenate([[0], np.cumsum(n_obs)[:-1]]).astype(np.int64))
+        delta = np.concatenate(deltas)
+        return _Tracks(np.concatenate(uv), delta, np.repeat(np.arange(len(uv)), n_obs),
+                       np.concatenate([[0], np.cumsum(n_obs)[:-1]]).astype(np.int64),
+                       np.column_stack([np.cos(delta), np.sin(delta), np.ones_like(delta)]))
+
+    def rotations(self, a: FloatArray) -> FloatArray:
+        """Every frame's rotation (N, 3, 3) by its delta about the unit axis a (3,)."""
+        return _rotations_of(self.turns, a)
 
     def per_track(self, values: FloatArray) -> FloatArray:
         """Sums of per-frame values (N, ...) over each track's frames: (T, ...)."""
@@ -324,8 +332,16 @@ def _skew(v: FloatArray) -> FloatArray:
 
 def _rotations(delta: FloatArray, a: FloatArray) -> FloatArray:
     """Rotations (N, 3, 3) by angles delta (N,) rad about the unit axis a (3,) (Rodrigues)."""
-    c, s = np.cos(delta)[:, None, None], np.sin(delta)[:, None, None]
-    return c * np.eye(3) + s * _skew(a) + (1.0 - c) * np.outer(a, a)
+    return _rotations_of(np.column_stack([np.cos(delta), np.sin(delta), np.ones_like(delta)]), a)
+
+
+def _rotations_of(turns: FloatArray, a: FloatArray) -> FloatArray:
+    """Rotations (N, 3, 3) about the unit axis a (3,) from (cos, sin, 1) of their angles, turns (N, 3).
+
+    Rodrigues as one product: R = cos (I - a a^T) + sin [a]x + a a^T.
+    """
+    aa = np.outer(a, a)
+    return (turns @ np.array([(np.eye(3) - aa).ravel(), _skew(a).ravel(), aa.ravel()])).reshape(-1, 3, 3)
 
 
 def _triangulate(tracks: _Tracks, Rs: FloatArray, p: FloatArray) -> FloatArray:
@@ -371,11 +387,11 @@ def _normal_blocks(tracks: _Tracks, w: FloatArray, wr: FloatArray, J_frame: Floa
     rotation, p for each track's point.
     """
     WJg, WJp = w[..., None] * J_frame, w[..., None] * J_point
-    H_gg = np.einsum("nki,nkj->ij", WJg, J_frame)
-    H_gp = tracks.per_track(np.einsum("nki,nkj->nij", WJg, J_point))
-    H_pp = tracks.per_track(np.einsum("nki,nkj->nij", WJp, J_point))
-    g_g = np.einsum("nki,nk->i", J_frame, wr)
-    g_p = tracks.per_track(np.einsum("nki,nk->ni", J_point, wr))
+    H_gg = WJg.reshape(-1, 3).T @ J_frame.reshape(-1, 3)
+    H_gp = tracks.per_track(np.swapaxes(WJg, 1, 2) @ J_point)
+    H_pp = tracks.per_track(np.swapaxes(WJp, 1, 2) @ J_point)
+    g_g = J_frame.reshape(-1, 3).T @ wr.ravel()
+    g_p = tracks.per_track((np.swapaxes(J_point, 1, 2) @ wr[..., None])[..., 0])
     return H_gg, H_gp, H_pp, g_g, g_p
 
 
@@ -413,30 +429,47 @@ class _ArrowSystem:
     """Normal equations (H + alpha I) x = b of the shared (g, 3) and per-track (p, 3 each) unknowns.
 
     H is arrow-shaped: H_gg (3, 3), H_gp (T, 3, 3), H_pp (T, 3, 3) with the tracks' blocks independent.
-    Each track's block is diagonalized once, so any alpha costs one 3 x 3 solve: the points are
-    eliminated track by track (Schur complement) through their eigenvalues.
+    Each track's block is diagonalized once (H_pp = Q diag(lam) Q^T), and the per-track unknowns are
+    handled in those eigenbases, all 3T at once (``y = Q^T x_p``, flattened): there the points' block is
+    diagonal, so any alpha costs one 3 x 3 solve (the Schur complement over the points), and lengths are
+    the same as in the original coordinates (``to_eigen``, ``from_eigen`` convert).
     """
 
     def __init__(self, H_gg: FloatArray, H_gp: FloatArray, H_pp: FloatArray, n_residuals: int):
         self.H_gg = H_gg
         lam, self.Q = np.linalg.eigh(H_pp)  # (T, 3), (T, 3, 3)
-        self.lam = np.maximum(lam, 0.0)
-        self.W = H_gp @ self.Q  # H_gp in each track's eigenbasis
+        lam = np.maximum(lam, 0.0)
+        self.lam = lam.ravel()  # (3T,)
+        self.W = np.swapaxes(H_gp @ self.Q, 1, 2).reshape(-1, 3)  # (3T, 3): H_gp's columns in the eigenbases
         # Full rank as scipy's least_squares judges it: the least singular value of the Jacobian above
         # eps * (number of residuals) times the largest.
-        S0 = H_gg - np.einsum("tik,tk,tjk->ij", self.W, 1.0 / np.maximum(self.lam, 1e-300), self.W)
+        S0 = H_gg - self.W.T @ (self.W / np.maximum(self.lam, 1e-300)[:, None])
         eig_s = np.linalg.eigvalsh(S0) if np.all(np.isfinite(S0)) else np.array([-1.0])
-        largest = max(float(self.lam.max(initial=0.0)), float(eig_s.max()))
+        largest = max(float(lam.max(initial=0.0)), float(eig_s.max()))
         threshold = (np.finfo(float).eps * n_residuals) ** 2 * largest
-        self.full_rank = bool(self.lam.min(initial=np.inf) > threshold and eig_s.min() > threshold)
+        self.full_rank = bool(lam.min(initial=np.inf) > threshold and eig_s.min() > threshold)
 
-    def solve(self, alpha: float, b_g: FloatArray, b_p: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """x_g (3,), x_p (T, 3) for b_g (3,), b_p (T, 3)."""
+    def to_eigen(self, x_p: FloatArray) -> FloatArray:
+        """Per-track vectors (T, 3) in the tracks' eigenbases, flattened: (3T,)."""
+        return (np.swapaxes(self.Q, 1, 2) @ x_p[..., None]).ravel()
+
+    def from_eigen(self, y: FloatArray) -> FloatArray:
+        """Flattened eigenbasis vectors (3T,) back to per-track vectors (T, 3)."""
+        return (self.Q @ y.reshape(-1, 3, 1))[..., 0]
+
+    def factor(self, alpha: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """For one alpha: 1 / (lam + alpha) (3T,), W scaled by it (3T, 3), the Schur complement (3, 3)."""
         inv = 1.0 / (self.lam + alpha)
-        S = self.H_gg + alpha * np.eye(3) - np.einsum("tik,tk,tjk->ij", self.W, inv, self.W)
-        c_p = np.einsum("tji,tj->ti", self.Q, b_p) * inv
-        x_g = np.linalg.solve(S, b_g - np.einsum("tik,tk->i", self.W, c_p))
-        return x_g, np.einsum("tij,tj->ti", self.Q, c_p - inv * np.einsum("tik,i->tk", self.W, x_g))
+        Wi = self.W * inv[:, None]
+        return inv, Wi, self.H_gg + alpha * np.eye(3) - self.W.T @ Wi
+
+    @staticmethod
+    def solve(factors: tuple[FloatArray, FloatArray, FloatArray], b_g: FloatArray, b_y: FloatArray
+              ) -> tuple[FloatArray, FloatArray]:
+        """x_g (3,), y (3T,) for b_g (3,), b_y (3T,) (eigenbases), with ``factor``'s factors."""
+        inv, Wi, S = factors
+        x_g = np.linalg.solve(S, b_g - Wi.T @ b_y)
+        return x_g, inv * b_y - Wi @ x_g
 
 
 def _trust_region_step(system: _ArrowSystem, g_g: FloatArray, g_p: FloatArray, radius: float,
@@ -445,24 +478,27 @@ def _trust_region_step(system: _ArrowSystem, g_g: FloatArray, g_p: FloatArray, r
 
     The model is 0.5 x^T H x + g^T x in scaled variables; the Levenberg-Marquardt parameter alpha is
     found by Newton's method on the step's length (More's, as scipy's ``solve_lsq_trust_region``
-    does with an SVD of the Jacobian; here through the arrow system). Returns the step and alpha.
+    does with an SVD of the Jacobian; here through the arrow system, in its eigenbases). Returns the
+    step and alpha.
     """
+    g_y = system.to_eigen(g_p)
 
     def step_and_phi(a: float) -> tuple[FloatArray, FloatArray, float, float]:
-        x_g, x_p = system.solve(a, -g_g, -g_p)
-        norm = float(np.sqrt(x_g @ x_g + np.sum(x_p ** 2)))
-        q_g, q_p = system.solve(a, x_g, x_p)
-        return x_g, x_p, norm - radius, -float(x_g @ q_g + np.sum(x_p * q_p)) / norm
+        factors = system.factor(a)
+        x_g, x_y = system.solve(factors, -g_g, -g_y)
+        norm = float(np.sqrt(x_g @ x_g + x_y @ x_y))
+        q_g, q_y = system.solve(factors, x_g, x_y)
+        return x_g, x_y, norm - radius, -float(x_g @ q_g + x_y @ q_y) / norm
 
     full_rank = system.full_rank
     if full_rank:
-        x_g, x_p, phi, phi_prime = step_and_phi(0.0)
+        x_g, x_y, phi, phi_prime = step_and_phi(0.0)
         # (the Schur complement of a nearly singular system can lose the step's accuracy: then as
         # rank deficient)
         full_rank = bool(np.isfinite(phi) and np.isfinite(phi_prime) and phi_prime < 0)
         if full_rank and phi <= 0:
-            return x_g, x_p, 0.0
-    alpha_upper = float(np.sqrt(g_g @ g_g + np.sum(g_p ** 2))) / radius
+            return x_g, system.from_eigen(x_y), 0.0
+    alpha_upper = float(np.sqrt(g_g @ g_g + g_y @ g_y)) / radius
     alpha_lower = -phi / phi_prime if full_rank else 0.0
     if not full_rank and alpha == 0:
         alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
@@ -477,9 +513,9 @@ def _trust_region_step(system: _ArrowSystem, g_g: FloatArray, g_p: FloatArray, r
         alpha -= (phi + radius) * ratio / radius
         if abs(phi) < 0.01 * radius:
             break
-    x_g, x_p = system.solve(alpha, -g_g, -g_p)
-    shrink = radius / float(np.sqrt(x_g @ x_g + np.sum(x_p ** 2)))
-    return x_g * shrink, x_p * shrink, alpha
+    x_g, x_y = system.solve(system.factor(alpha), -g_g, -g_y)
+    shrink = radius / float(np.sqrt(x_g @ x_g + x_y @ x_y))
+    return x_g * shrink, system.from_eigen(x_y) * shrink, alpha
 
 
 def _refine(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal: float,
@@ -502,7 +538,7 @@ def _refine(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal
         return 0.5 * s2 * float(np.sum(np.log1p(r ** 2 / s2)))
 
     def linearize(a: FloatArray, p: FloatArray, X0: FloatArray):
-        r, J_frame, J_point = _residuals(tracks, _rotations(tracks.delta, a), p, X0, focal, jacobian=True)
+        r, J_frame, J_point = _residuals(tracks, tracks.rotations(a), p, X0, focal, jacobian=True)
         z = r ** 2 / s2
         blocks = _normal_blocks(tracks, _hessian_weights(z), r / (1.0 + z),
                                 J_frame @ np.column_stack([u, v, a]), J_point)
@@ -527,13 +563,13 @@ def _refine(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal
         reduction = -1.0
         while reduction <= 0 and n_eval < max_evaluations:
             h_g, h_p, alpha = _trust_region_step(system, g_g, g_p, radius, alpha)
-            Hh_g = H_gg @ h_g + np.einsum("tij,tj->i", H_gp, h_p)
-            Hh_p = np.einsum("tji,j->ti", H_gp, h_g) + np.einsum("tij,tj->ti", H_pp, h_p)
+            Hh_g = H_gg @ h_g + np.swapaxes(H_gp, 0, 1).reshape(3, -1) @ h_p.ravel()
+            Hh_p = h_g @ H_gp + (H_pp @ h_p[..., None])[..., 0]
             predicted = -(0.5 * (h_g @ Hh_g + np.sum(h_p * Hh_p)) + h_g @ g_g + np.sum(h_p * g_p))
             step_g, step_p = h_g * d_g, h_p * d_p
             a_new, p_new = _turn(np.column_stack([u, v, a]) @ step_g, a, p)
             X0_new = X0 + step_p
-            r_new = _residuals(tracks, _rotations(tracks.delta, a_new), p_new, X0_new, focal)
+            r_new = _residuals(tracks, tracks.rotations(a_new), p_new, X0_new, focal)
             n_eval += 1
             h_norm = float(np.sqrt(h_g @ h_g + np.sum(h_p ** 2)))
             if not np.all(np.isfinite(r_new)):
@@ -557,6 +593,9 @@ def _refine(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal
             radius = new_radius
         if reduction > 0:
             a, p, X0, c, theta = a_new, p_new, X0_new, c_new, theta + step_g[2]
+            if done or n_eval >= max_evaluations:  # the last point: only its residuals are needed
+                r = r_new
+                break
             r, blocks, (new_g, new_p) = linearize(a, p, X0)
             inv_g, inv_p = np.maximum(inv_g, new_g), np.maximum(inv_p, new_p)
     track_rms = np.sqrt(tracks.per_track(np.sum(r ** 2, axis=1)) / np.diff(np.append(tracks.first, len(r))))
@@ -571,7 +610,7 @@ def _axis_std(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, foc
     least_squares reports its Jacobian), its Schur complement over the points, and the residuals'
     robust scale.
     """
-    r, J_frame, J_point = _residuals(tracks, _rotations(tracks.delta, a), p, X0, focal, jacobian=True)
+    r, J_frame, J_point = _residuals(tracks, tracks.rotations(a), p, X0, focal, jacobian=True)
     H_gg, H_gp, H_pp, _, _ = _normal_blocks(tracks, _hessian_weights(r ** 2 / config.loss_scale_px ** 2), r,
                                             J_frame, J_point)
     try:
@@ -593,7 +632,7 @@ def _track_rms(tracks: _Tracks, a: FloatArray, p: FloatArray, focal: float,
 
     Every track's point by its own Levenberg-Marquardt from the linear triangulation, all tracks at once.
     """
-    Rs = _rotations(tracks.delta, a)
+    Rs = tracks.rotations(a)
     X0 = _triangulate(tracks, Rs, p)
     r, _, J = _residuals(tracks, Rs, p, X0, focal, jacobian=True)
     cost = tracks.per_track(np.sum(r ** 2, axis=1))
@@ -673,7 +712,7 @@ def _fit_from_start(uv: list[FloatArray], deltas: list[FloatArray], a: FloatArra
     for _ in range(3):
         idx = np.flatnonzero(keep)
         tracks = _Tracks.of([uv[t] for t in idx], [deltas[t] for t in idx])
-        X0 = _triangulate(tracks, _rotations(tracks.delta, a), p)
+        X0 = _triangulate(tracks, tracks.rotations(a), p)
         a, p, X, rms = _refine(tracks, a, p, X0, focal, config)
         if np.median(X[:, 2]) < 0:  # negating p and every point projects the same: keep them in front
             p, X = -p, -X

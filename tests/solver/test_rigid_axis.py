@@ -219,8 +219,12 @@ def test_the_arrow_system_solves_the_assembled_normal_equations(alpha):
                           np.stack(blocks), J.shape[0])
     assert system.full_rank
     b = rng.normal(size=3 + 3 * n_tracks)
-    x_g, x_p = system.solve(alpha, b[:3], b[3:].reshape(-1, 3))
-    np.testing.assert_allclose(np.concatenate([x_g, x_p.ravel()]),
+    b_p = b[3:].reshape(-1, 3)
+    b_y = system.to_eigen(b_p)
+    assert np.linalg.norm(b_y) == pytest.approx(np.linalg.norm(b_p), rel=1e-12)  # the eigenbases keep lengths
+    np.testing.assert_allclose(system.from_eigen(b_y), b_p, rtol=0, atol=1e-12)
+    x_g, x_y = system.solve(system.factor(alpha), b[:3], b_y)
+    np.testing.assert_allclose(np.concatenate([x_g, system.from_eigen(x_y).ravel()]),
                                np.linalg.solve(H + alpha * np.eye(H.shape[0]), b), rtol=1e-9, atol=1e-12)
 
 
