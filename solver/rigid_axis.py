@@ -365,19 +365,46 @@ def _residuals(tracks: _Tracks, Rs: FloatArray, p: FloatArray, X0: FloatArray, f
     With ``jacobian``, also their derivatives (N, 2, 3) with respect to a small rotation w of the
     line's frame (a <- exp(w) a, p <- exp(w) p) and (N, 2, 3) with respect to the frame's track point.
     """
+    projection = _project(tracks, Rs, p, X0, focal)
+    if not jacobian:
+        return projection.r
+    return projection.r, *_jacobians(projection, focal)
+
+
+@dataclass(frozen=True)
+class _Projection:
+    """The track points turned into every frame and projected (``_project``).
+
+    Attributes:
+        Rs: (N, 3, 3) the frames' rotations; Xt: (N, 3) each frame's track point before its turn;
+        X: (N, 3) after it, camera frame; z: (N,) its depth (kept off zero); r: (N, 2) px residuals.
+    """
+
+    Rs: FloatArray
+    Xt: FloatArray
+    X: FloatArray
+    z: FloatArray
+    r: FloatArray
+
+
+def _project(tracks: _Tracks, Rs: FloatArray, p: FloatArray, X0: FloatArray, focal: float) -> _Projection:
+    """``_residuals`` without derivatives, keeping what they need."""
     Xt = X0[tracks.track]
     X = np.einsum("nij,nj->ni", Rs, Xt - p) + p
     z = np.where(np.abs(X[:, 2]) < 1e-6, 1e-6, X[:, 2])
-    r = (X[:, :2] / z[:, None] - tracks.uv) * focal
-    if not jacobian:
-        return r
+    return _Projection(Rs, Xt, X, z, (X[:, :2] / z[:, None] - tracks.uv) * focal)
+
+
+def _jacobians(projection: _Projection, focal: float) -> tuple[FloatArray, FloatArray]:
+    """``_residuals``'s derivatives (N, 2, 3) and (N, 2, 3) at a projection."""
+    Rs, Xt, X, z = projection.Rs, projection.Xt, projection.X, projection.z
     # d(pixel)/dX, then dX/dX0 = R and dX/dw = R [X0]x - [X]x (R conjugated by exp(w), p turned by it).
     P = np.zeros((len(z), 2, 3))
     P[:, 0, 0] = P[:, 1, 1] = focal / z
     P[:, :, 2] = -focal * X[:, :2] / z[:, None] ** 2
     J_point = P @ Rs
     J_frame = J_point @ _skew(Xt) - P @ _skew(X)
-    return r, J_frame, J_point
+    return J_frame, J_point
 
 
 def _normal_blocks(tracks: _Tracks, w: FloatArray, wr: FloatArray, J_frame: FloatArray, J_point: FloatArray):
@@ -417,8 +444,12 @@ def _damping_scale(H: FloatArray) -> FloatArray:
 def _turn(w: FloatArray, a: FloatArray, p: FloatArray) -> tuple[FloatArray, FloatArray]:
     """The line's frame (a, p) turned by the small rotation vector w (3,), kept orthonormal."""
     angle = float(np.linalg.norm(w))
-    if angle > 0:
-        R = _rotations(np.array([angle]), w / angle)[0]
+    if angle > 0:  # Rodrigues, entry by entry (one 3 x 3)
+        (x, y, z), c, s = (w / angle).tolist(), np.cos(angle), np.sin(angle)
+        C = 1.0 - c
+        R = np.array([[c + x * x * C, x * y * C - z * s, x * z * C + y * s],
+                      [y * x * C + z * s, c + y * y * C, y * z * C - x * s],
+                      [z * x * C - y * s, z * y * C + x * s, c + z * z * C]])
         a, p = R @ a, R @ p
     a = a / np.linalg.norm(a)
     p = p - a * (a @ p)
@@ -537,8 +568,11 @@ def _refine(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal
     def cost(r: FloatArray) -> float:
         return 0.5 * s2 * float(np.sum(np.log1p(r ** 2 / s2)))
 
-    def linearize(a: FloatArray, p: FloatArray, X0: FloatArray):
-        r, J_frame, J_point = _residuals(tracks, tracks.rotations(a), p, X0, focal, jacobian=True)
+    def linearize(a: FloatArray, p: FloatArray, X0: FloatArray, projection: _Projection | None = None):
+        # (a trial's projection at the same point gives the same residuals: not computed twice)
+        projection = projection or _project(tracks, tracks.rotations(a), p, X0, focal)
+        r = projection.r
+        J_frame, J_point = _jacobians(projection, focal)
         z = r ** 2 / s2
         blocks = _normal_blocks(tracks, _hessian_weights(z), r / (1.0 + z),
                                 J_frame @ np.column_stack([u, v, a]), J_point)
@@ -569,7 +603,8 @@ def _refine(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal
             step_g, step_p = h_g * d_g, h_p * d_p
             a_new, p_new = _turn(np.column_stack([u, v, a]) @ step_g, a, p)
             X0_new = X0 + step_p
-            r_new = _residuals(tracks, tracks.rotations(a_new), p_new, X0_new, focal)
+            trial = _project(tracks, tracks.rotations(a_new), p_new, X0_new, focal)
+            r_new = trial.r
             n_eval += 1
             h_norm = float(np.sqrt(h_g @ h_g + np.sum(h_p ** 2)))
             if not np.all(np.isfinite(r_new)):
@@ -596,7 +631,7 @@ def _refine(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal
             if done or n_eval >= max_evaluations:  # the last point: only its residuals are needed
                 r = r_new
                 break
-            r, blocks, (new_g, new_p) = linearize(a, p, X0)
+            r, blocks, (new_g, new_p) = linearize(a, p, X0, trial)
             inv_g, inv_p = np.maximum(inv_g, new_g), np.maximum(inv_p, new_p)
     track_rms = np.sqrt(tracks.per_track(np.sum(r ** 2, axis=1)) / np.diff(np.append(tracks.first, len(r))))
     return a, p, X0, track_rms
