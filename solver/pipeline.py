@@ -286,6 +286,11 @@ FAMILY_MAX_RIVALS = 2
 FAMILY_SAME_CHI2 = 22.46
 #: ... else the better-fitting one is kept only when the other's score is this fraction higher.
 FAMILY_MARGIN = 0.1
+#: The family chain and the linear start's adjustment reached the same minimum when their poses differ by less than
+#: this many of the chain's 1-sigma (Mahalanobis): the chain is kept and counts as confirmed (``_rival_linear``).
+#: Comparing their fits there compares round-off (seen: 1.1e-8 sigma apart, the winner flipping with the BLAS
+#: path, and the later updates 0.46 sigma apart for a few motions).
+RIVAL_SAME_SIGMA = 0.01
 
 
 def _geometric_std(refined: RefinementResult) -> FloatArray:
@@ -293,6 +298,16 @@ def _geometric_std(refined: RefinementResult) -> FloatArray:
     covariance = refined.covariance if refined.sandwich_covariance is None else refined.sandwich_covariance
     with np.errstate(invalid="ignore"):
         return np.sqrt(np.diag(covariance))
+
+
+def _pose_chi2(a: RefinementResult, b: RefinementResult, covariance: FloatArray) -> float:
+    """xi^T C^-1 xi (inf if C is singular) of xi (6,) = pose_difference(a, b) in ``covariance`` C (6, 6)."""
+    xi = pose_difference(a.T_camera_base, b.T_camera_base)
+    try:
+        d2 = float(xi @ np.linalg.solve(covariance, xi))
+    except np.linalg.LinAlgError:
+        return np.inf
+    return d2 if np.isfinite(d2) else np.inf
 
 
 def _fit_score(tracks: TrackSet, refined: RefinementResult, cap_px: float) -> float:
@@ -617,7 +632,8 @@ class Calibrator:
         A family start is rough (one ray's worth of members, scored on a subsample) and every later update
         starts from the previous pose, so the chain can stay in a worse minimum; once the motions' axes give
         a linear pose, both starts are adjusted on every motion and the one that explains the tracks better
-        (``_fit_score``) goes on. When the linear start wins, the chain is an ordinary one from then on.
+        (``_fit_score``) goes on. When the linear start wins, or both reach the same pose
+        (``RIVAL_SAME_SIGMA``: the chain's result is kept), the chain is an ordinary one from then on.
 
         Returns:
             (the kept result, "", True), or (None, why, whether an adjustment ran) when neither passes its checks.
@@ -626,8 +642,10 @@ class Calibrator:
         warm = self._warm_points(live)
         chain, why, ran = self._refine_checked(tracks, self._refined.T_camera_base, warm)
         rival, why_rival, ran_rival = self._refine_checked(tracks, linear, None)
-        if rival is not None and (chain is None or _fit_score(tracks, rival, FAMILY_CAP_PX)
-                                  < _fit_score(tracks, chain, FAMILY_CAP_PX)):
+        if rival is not None and chain is not None and _pose_chi2(chain, rival, chain.covariance) < RIVAL_SAME_SIGMA**2:
+            self._from_family = False
+        elif rival is not None and (chain is None or _fit_score(tracks, rival, FAMILY_CAP_PX)
+                                    < _fit_score(tracks, chain, FAMILY_CAP_PX)):
             chain, self._from_family = rival, False
         if chain is None:
             return None, why or why_rival, ran or ran_rival
@@ -690,9 +708,9 @@ class Calibrator:
         results.sort(key=lambda r: r[1])
         chosen, score = results[0]
         for other, other_score in results[1:]:
-            xi = pose_difference(chosen.T_camera_base, other.T_camera_base)
-            same = xi @ np.linalg.solve(chosen.covariance + other.covariance, xi) < FAMILY_SAME_CHI2
+            same = _pose_chi2(chosen, other, chosen.covariance + other.covariance) < FAMILY_SAME_CHI2
             if not same and other_score < (1 + FAMILY_MARGIN) * score:
+                xi = pose_difference(chosen.T_camera_base, other.T_camera_base)
                 er, et = float(np.linalg.norm(xi[:3])), float(np.linalg.norm(xi[3:]))
                 return None, (f"{prefix}: two of its members fit the tracks about equally well ({score:.3g} and "
                               f"{other_score:.3g} px^2) {er:.3g} rad / {et:.3g} m apart; add motions")

@@ -472,3 +472,31 @@ def test_the_motions_fix_the_pose_is_judged_before_the_motion_jackknife():
     bounded = run(CalibratorConfig(family_start=False, max_std_translation=bound))
     assert bounded.state.stage == "refined"
     assert np.max(bounded.state.std[3:]) > bound  # the reported 1-sigma keeps the jackknife
+
+
+@pytest.mark.parametrize(("offset_sigma", "rival_wins"), [(1e-6, False), (3.0, True)])
+def test_a_linear_rival_at_the_same_pose_keeps_the_family_chain(monkeypatch, offset_sigma, rival_wins):
+    """The family chain against the linear start's adjustment: at the same pose (below RIVAL_SAME_SIGMA) the chain's
+    result stays whichever fits better by round-off, and the comparison ends; a distinct, better rival replaces it."""
+    from solver.refinement import RefinementResult, TrackSet
+
+    T = sample_camera_pose(np.random.default_rng(8))
+    cov = np.diag([1e-6] * 3 + [1e-6] * 3)  # 1 mrad, 1 mm
+    tracks = TrackSet(np.zeros((4, 2)), np.zeros(4, dtype=np.int64), np.tile(np.eye(3), (4, 1, 1)),
+                      np.zeros((1, 3)), np.zeros(1, dtype=np.int64), np.array([600.0, 600.0]))
+
+    def result(T_pose, rms):
+        return RefinementResult(T_pose, cov, np.zeros((1, 3)), np.ones(1, dtype=bool), rms, rms)
+
+    moved = T.copy()
+    moved[:3, 3] += offset_sigma * 1e-3 * np.array([1.0, 0.0, 0.0])
+    chain, rival = result(T, 0.50), result(moved, 0.40)  # the rival fits better
+    cal = Calibrator(K, PANDA.axis_and_point)
+    cal._refined, cal._from_family = chain, True
+    starts = iter([chain, rival])
+    monkeypatch.setattr(cal, "_refine_checked", lambda *args: (next(starts), "", True))
+    monkeypatch.setattr(cal, "_warm_points", lambda live: None)
+    monkeypatch.setattr(cal, "_store_batch", lambda live, tracks, refined: None)
+    kept, why, ran = cal._rival_linear(tracks, [0], moved)
+    assert kept is (rival if rival_wins else chain) and why == "" and ran
+    assert not cal._from_family  # either way the linear start was tried: the chain is an ordinary one from now on
