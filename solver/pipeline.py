@@ -288,8 +288,8 @@ FAMILY_SAME_CHI2 = 22.46
 FAMILY_MARGIN = 0.1
 #: The family chain and the linear start's adjustment reached the same minimum when their poses differ by less than
 #: this many of the chain's 1-sigma (Mahalanobis): the chain is kept and counts as confirmed (``_rival_linear``).
-#: Comparing their fits there compares round-off (seen: 1.1e-8 sigma apart, the winner flipping with the BLAS
-#: path, and the later updates 0.46 sigma apart for a few motions).
+#: Comparing their fits there compares round-off (seen: 1.1e-8 sigma apart, the winner flipping when unrelated code
+#: changed its arithmetic, and the later updates 0.46 sigma apart for a few motions).
 RIVAL_SAME_SIGMA = 0.01
 
 
