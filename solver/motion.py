@@ -31,6 +31,7 @@ from solver.reference_lines import (
     centres_3d,
     fit_phase_circles,
     fit_reference_plane,
+    phase_circle_solution,
     plane_basis,
     project_to_plane,
 )
@@ -135,8 +136,6 @@ class _Points:
         first: (n,) index of each trajectory's first point; counts: (n,) its number of points.
         phase: (P,) complex exp(i delta).
         sums: (n,) complex, each trajectory's sum of ``phase``.
-        good: (n,) bool: the trajectory's phase-circle fit is well posed (its delta changes).
-        det: (n,) the fit's determinant (1 where not ``good``).
     """
 
     rays: FloatArray
@@ -148,8 +147,6 @@ class _Points:
     counts: NDArray[np.int64]
     phase: NDArray[np.complex128]
     sums: NDArray[np.complex128]
-    good: BoolArray
-    det: FloatArray
 
 
 def _gather(rays: list[FloatArray], deltas: list[FloatArray], slots: list[int]) -> _Points:
@@ -159,12 +156,8 @@ def _gather(rays: list[FloatArray], deltas: list[FloatArray], slots: list[int]) 
     first = np.concatenate([[0], np.cumsum(counts[:-1])]).astype(np.int64)
     phase = np.exp(1j * delta)
     sums = np.add.reduceat(phase, first)
-    n = counts.astype(np.float64)
-    det = n * n - np.abs(sums) ** 2  # fit_phase_circles's normal equations, fixed by delta alone
-    good = det > 1e-12 * np.maximum(n * n, 1.0)
     all_rays = np.concatenate([rays[s] for s in slots])
-    return _Points(all_rays, delta, ids, len(slots), np.ascontiguousarray(all_rays.T), first, counts, phase, sums,
-                   good, np.where(good, det, 1.0))
+    return _Points(all_rays, delta, ids, len(slots), np.ascontiguousarray(all_rays.T), first, counts, phase, sums)
 
 
 def _circles(points: _Points, axis: FloatArray) -> PhaseCircles:
@@ -179,9 +172,7 @@ def _phase_model(points: _Points, z: NDArray[np.complex128]) -> NDArray[np.compl
     """
     Z1 = np.add.reduceat(z, points.first, axis=1)  # (K, n)
     Z2 = np.add.reduceat(points.phase.conj() * z, points.first, axis=1)
-    n, S = points.counts.astype(np.float64), points.sums
-    c = np.where(points.good, (n * Z1 - S * Z2) / points.det, Z1 / np.maximum(n, 1))
-    gamma = np.where(points.good, (n * Z2 - np.conj(S) * Z1) / points.det, 0)
+    c, gamma, _ = phase_circle_solution(points.counts.astype(np.float64), points.sums, Z1, Z2)
     return np.repeat(c, points.counts, axis=1) + np.repeat(gamma, points.counts, axis=1) * points.phase
 
 

@@ -68,6 +68,29 @@ class PhaseCircles:
     counts: IntArray
 
 
+def phase_circle_solution(n: FloatArray, S: NDArray[np.complex128], Z1: NDArray[np.complex128],
+                          Z2: NDArray[np.complex128]
+                          ) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.bool_]]:
+    """The phase model's closed-form (c, gamma) per trajectory (``fit_phase_circles``) from its sums.
+
+    Args:
+        n: (L,) points per trajectory.
+        S: (L,) each trajectory's sum of exp(i delta).
+        Z1: (..., L) each trajectory's sum of z (any leading axes: several z at once).
+        Z2: (..., L) each trajectory's sum of exp(-i delta) z, likewise.
+
+    Returns:
+        c, gamma (..., L) and good (L,): the fit is well posed (delta changes); where not, c is the mean of z
+        and gamma 0.
+    """
+    det = n * n - np.abs(S) ** 2
+    good = det > 1e-12 * np.maximum(n * n, 1.0)
+    safe = np.where(good, det, 1.0)
+    c = np.where(good, (n * Z1 - S * Z2) / safe, Z1 / np.maximum(n, 1))
+    gamma = np.where(good, (n * Z2 - np.conj(S) * Z1) / safe, 0)
+    return c, gamma, good
+
+
 def fit_phase_circles(points: FloatArray, delta: FloatArray, track_ids: IntArray,
                       n_tracks: int) -> PhaseCircles:
     """Globally optimal phase-model circle fit (Eq. 16-17) for many trajectories at once.
@@ -96,12 +119,7 @@ def fit_phase_circles(points: FloatArray, delta: FloatArray, track_ids: IntArray
         return re + 1j * im
 
     n = np.bincount(track_ids, minlength=n_tracks).astype(np.float64)
-    S, Z1, Z2 = per_track(e), per_track(z), per_track(np.conj(e) * z)
-    det = n * n - np.abs(S) ** 2
-    good = det > 1e-12 * np.maximum(n * n, 1.0)
-    safe = np.where(good, det, 1.0)
-    c = np.where(good, (n * Z1 - S * Z2) / safe, Z1 / np.maximum(n, 1))
-    gamma = np.where(good, (n * Z2 - np.conj(S) * Z1) / safe, 0)
+    c, gamma, good = phase_circle_solution(n, per_track(e), per_track(z), per_track(np.conj(e) * z))
     residual = z - c[track_ids] - gamma[track_ids] * e
     costs = np.bincount(track_ids, weights=np.abs(residual) ** 2, minlength=n_tracks)
     costs = np.where(good, costs, np.inf)
