@@ -444,12 +444,8 @@ def _damping_scale(H: FloatArray) -> FloatArray:
 def _turn(w: FloatArray, a: FloatArray, p: FloatArray) -> tuple[FloatArray, FloatArray]:
     """The line's frame (a, p) turned by the small rotation vector w (3,), kept orthonormal."""
     angle = float(np.linalg.norm(w))
-    if angle > 0:  # Rodrigues, entry by entry (one 3 x 3)
-        (x, y, z), c, s = (w / angle).tolist(), np.cos(angle), np.sin(angle)
-        C = 1.0 - c
-        R = np.array([[c + x * x * C, x * y * C - z * s, x * z * C + y * s],
-                      [y * x * C + z * s, c + y * y * C, y * z * C - x * s],
-                      [z * x * C - y * s, z * y * C + x * s, c + z * z * C]])
+    if angle > 0:
+        R = _rotations_of(np.array([[np.cos(angle), np.sin(angle), 1.0]]), w / angle)[0]
         a, p = R @ a, R @ p
     a = a / np.linalg.norm(a)
     p = p - a * (a @ p)
