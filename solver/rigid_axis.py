@@ -296,7 +296,7 @@ class _Tracks:
         delta: (N,) rad, the joint's turn in every frame.
         track: (N,) the track of every frame (0..T-1, non-decreasing).
         first: (T,) index of every track's first frame in the arrays above.
-        turns: (N, 3) cos(delta), sin(delta), 1 of every frame (``_rotations``'s coefficients).
+        turns: (N, 3) cos(delta), sin(delta), 1 of every frame (``_rotations_of``'s coefficients).
     """
 
     uv: FloatArray
@@ -328,11 +328,6 @@ def _skew(v: FloatArray) -> FloatArray:
     S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
     S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
     return S
-
-
-def _rotations(delta: FloatArray, a: FloatArray) -> FloatArray:
-    """Rotations (N, 3, 3) by angles delta (N,) rad about the unit axis a (3,) (Rodrigues)."""
-    return _rotations_of(np.column_stack([np.cos(delta), np.sin(delta), np.ones_like(delta)]), a)
 
 
 def _rotations_of(turns: FloatArray, a: FloatArray) -> FloatArray:

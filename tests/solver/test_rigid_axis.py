@@ -20,7 +20,6 @@ from solver.rigid_axis import (
     _grid_starts,
     _refine,
     _residuals,
-    _rotations,
     _track_rms,
     _Tracks,
     _triangulate,
@@ -146,22 +145,22 @@ def _line_and_points(seed: int, point_noise: float = 0.0):
     a = Rotation.from_rotvec(rng.normal(0.0, 0.05, 3)).apply(axis)
     p = point - a * (a @ point)
     p /= np.linalg.norm(p)
-    X0 = _triangulate(tracks, _rotations(tracks.delta, a), p)
+    X0 = _triangulate(tracks, tracks.rotations(a), p)
     return tracks, a, p, X0 + rng.normal(0.0, point_noise, X0.shape)
 
 
 def test_the_analytic_jacobian_matches_central_differences():
     tracks, a, p, X0 = _line_and_points(11, point_noise=0.01)
     focal = float(K[0, 0])
-    _, J_frame, J_point = _residuals(tracks, _rotations(tracks.delta, a), p, X0, focal, jacobian=True)
+    _, J_frame, J_point = _residuals(tracks, tracks.rotations(a), p, X0, focal, jacobian=True)
     step = 1e-6
     for k in range(3):  # the line's frame turned by +-step about each camera axis
         turned = [_turn(sign * step * np.eye(3)[k], a, p) for sign in (1.0, -1.0)]
-        r_plus, r_minus = (_residuals(tracks, _rotations(tracks.delta, ak), pk, X0, focal) for ak, pk in turned)
+        r_plus, r_minus = (_residuals(tracks, tracks.rotations(ak), pk, X0, focal) for ak, pk in turned)
         np.testing.assert_allclose(J_frame[:, :, k], (r_plus - r_minus) / (2 * step), rtol=1e-5, atol=1e-3)
     for k in range(3):  # every track's point moved at once: each frame sees only its own track's point
         moved = [X0 + sign * step * np.eye(3)[k] for sign in (1.0, -1.0)]
-        r_plus, r_minus = (_residuals(tracks, _rotations(tracks.delta, a), p, X, focal) for X in moved)
+        r_plus, r_minus = (_residuals(tracks, tracks.rotations(a), p, X, focal) for X in moved)
         np.testing.assert_allclose(J_point[:, :, k], (r_plus - r_minus) / (2 * step), rtol=1e-5, atol=1e-3)
 
 
@@ -172,13 +171,13 @@ def test_the_block_trust_region_reaches_the_dense_ones_minimum():
 
     def residuals(x):
         a, p = _turn(x[:3], a0, p0)
-        return _residuals(tracks, _rotations(tracks.delta, a), p, x[3:].reshape(-1, 3), focal).ravel()
+        return _residuals(tracks, tracks.rotations(a), p, x[3:].reshape(-1, 3), focal).ravel()
 
     dense = least_squares(residuals, np.concatenate([np.zeros(3), X0.ravel()]), tr_solver="exact",
                           loss="cauchy", f_scale=config.loss_scale_px, x_scale="jac", max_nfev=100)
     a_dense, _ = _turn(dense.x[:3], a0, p0)
     a, p, X, rms = _refine(tracks, a0, p0, X0, focal, config)
-    r = _residuals(tracks, _rotations(tracks.delta, a), p, X, focal)
+    r = _residuals(tracks, tracks.rotations(a), p, X, focal)
     cost = 0.5 * config.loss_scale_px ** 2 * np.sum(np.log1p(r ** 2 / config.loss_scale_px ** 2))
     assert _angle(a0, a_dense) > np.radians(1.0)  # the start is off: both moved
     assert cost == pytest.approx(dense.cost, rel=1e-6)
@@ -192,7 +191,7 @@ def test_the_batched_track_check_matches_one_track_at_a_time():
     tracks, a, p, _ = _line_and_points(13)
     focal = float(K[0, 0])
     rms = _track_rms(tracks, a, p, focal)
-    Rs = _rotations(tracks.delta, a)
+    Rs = tracks.rotations(a)
     for t in range(len(rms)):
         rows = tracks.track == t
         one = _Tracks.of([tracks.uv[rows]], [tracks.delta[rows]])
