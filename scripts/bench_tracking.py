@@ -30,6 +30,7 @@ CONFIGS = {
     "default": TrackerConfig(),
     "no_redetect": TrackerConfig(redetect_every=0),
     "plain_lk": TrackerConfig(affine_iterations=0),
+    "quadratic": TrackerConfig(quadratic_warp=True),
 }
 
 
