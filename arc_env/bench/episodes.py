@@ -196,7 +196,8 @@ def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
     return _run_arc(spec)
 
 
-def _make_env(spec: EpisodeSpec, board: bool = False):  # noqa: ANN202  (ArcCalibEnv; imported lazily)
+def make_env(spec: EpisodeSpec, board: bool = False):  # noqa: ANN202  (ArcCalibEnv; imported lazily)
+    """The spec's environment, reset to its benchmark camera pose: (env, first observation)."""
     from arc_env.bench.poses import benchmark_camera_pose, benchmark_view
     from arc_env.sim.env import ArcCalibEnv, EnvConfig
     from arc_env.sim.marker_board import MarkerBoard
@@ -224,7 +225,7 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
                               "frames": 0, "converged_at": None, "refused": 0, "in_collision": 0,
                               "T_camera_base": None, "note": "", "tracks": [], "full_tracks": [],
                               "std_curve": [], "false_convergence": 0}
-    env, obs = _make_env(spec)
+    env, obs = make_env(spec)
     try:
         planner_cls = RandomPlanner if spec.method == "random" else InformedPlanner
         planner = planner_cls(env.session, np.random.default_rng(spec.rng_seed))
@@ -281,7 +282,7 @@ def _run_marker(spec: EpisodeSpec) -> dict[str, Any]:
     from arc_env.bench.marker_baseline import MarkerBaseline
 
     started = time.perf_counter()
-    env, _ = _make_env(spec, board=True)
+    env, _ = make_env(spec, board=True)
     try:
         baseline = MarkerBaseline(env, np.random.default_rng(spec.rng_seed))
         run = baseline.run(spec.motions)

@@ -274,6 +274,27 @@ class Scene:
         """
         return self.robot.project_points(body, local, self.T_camera_base, self.intrinsics, min_depth, margin_px)
 
+    def surface_point_at(self, pixel: FloatArray) -> tuple[int, FloatArray] | None:
+        """What of the robot the true camera sees at ``pixel`` (2,) px in the current state (simulation's truth).
+
+        Casts the pixel's ray (``mujoco.mj_ray``) against the geoms the camera draws, from the camera
+        centre and past its mount. Returns (body id, (3,) m the hit point in that body's frame), or None
+        when the ray meets no robot geom.
+        """
+        K_inv = np.linalg.inv(self.intrinsics.K)
+        T_world_camera = self.robot.T_world_base @ np.linalg.inv(self.T_camera_base)
+        ray = T_world_camera[:3, :3] @ (K_inv @ np.array([pixel[0], pixel[1], 1.0]))
+        ray /= np.linalg.norm(ray)
+        start = T_world_camera[:3, 3]
+        groups = np.array(self._scene_option.geomgroup, dtype=np.uint8)  # the groups the camera draws
+        geom = np.array([-1], dtype=np.int32)
+        distance = mujoco.mj_ray(self.model, self.data, start, ray, groups, 1, self.mount_body, geom)
+        if geom[0] < 0 or self.model.geom_bodyid[geom[0]] not in self.robot.robot_bodies:
+            return None
+        body = int(self.model.geom_bodyid[geom[0]])
+        hit = start + distance * ray
+        return body, self.data.xmat[body].reshape(3, 3).T @ (hit - self.data.xpos[body])
+
     # -- rendering -----------------------------------------------------------------------------
     @property
     def renderer(self) -> mujoco.Renderer:

@@ -95,12 +95,12 @@ def test_same_spec_same_record_fields(stored):
 
 
 def test_each_realistic_episode_marks_its_robot_with_its_own_seed():
-    from arc_env.bench.episodes import _make_env
+    from arc_env.bench.episodes import make_env
 
     marks = []
     for seed in (0, 1):
         spec = EpisodeSpec("random", 0, seed, motions=1, width=64, height=48, realism="realistic")
-        env, _ = _make_env(spec)
+        env, _ = make_env(spec)
         try:
             assert env.scene.config.appearance_seed == spec.rng_seed
             marks.append((env.scene.marks.patterns, [label.pos.tolist() for label in env.scene.marks.labels]))
