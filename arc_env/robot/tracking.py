@@ -24,9 +24,8 @@ projections gave 0.3 mm). ``quadratic_warp`` gives the patch map quadratic terms
 curvature, with a weak prior that keeps them near zero where the texture cannot fix them
 (``quadratic_ridge``); a patch that bends much is straddling an edge and ends (``max_bend_px``). It is
 off by default: on realistic images the bend check that keeps rim tracks out also ends half the tracks
-(``TrackerConfig``'s figures). Corners that slide smoothly (shading,
-highlights) pass every check here; the solver's rigid-motion check (``solver.rigid_axis``) and the bundle
-adjustment's robust loss drop them.
+(``TrackerConfig``'s figures). Corners that slide smoothly (shading, highlights) pass every check here;
+the solver's rigid-motion check (``solver.rigid_axis``) and the bundle adjustment's robust loss drop them.
 
 Pure numpy/OpenCV (never MuJoCo): rendered frames and real-robot recordings go through the same code.
 Pixels are OpenCV pixels (x right, y down, origin at the centre of the top-left pixel).
@@ -117,7 +116,7 @@ class TrackerConfig:
             time +17 %. Rendered 720p episodes, the same 25 motions re-rendered and tracked, translation
             error at 25 motions, affine / quadratic (0.1 prior, no bend check) / quadratic (0.1, 2 px):
             clean painted Panda pose 0 4.14 / 2.89 / 3.13 mm; realistic Panda pose 0 8.79 / 5.01 / 8.27,
-            pose 1 1.16 / 2.00 / 0.84; realistic iiwa pose 0 9.48 / 8.78 / -, pose 1 1.76 / 0.19 / -;
+            pose 1 1.16 / 2.00 / 0.84; realistic iiwa pose 0 9.48 / 8.78 / not run, pose 1 1.76 / 0.19 / not run;
             tracks per motion (realistic Panda) 53 / 54 / 25-30. Off by default until the bend check
             tells rim tracks from noisy ones.
         quadratic_ridge: strength of the prior pulling the quadratic terms towards 0, as a fraction of
@@ -126,10 +125,11 @@ class TrackerConfig:
             affine, 182 quadratic, 261 with 0.1 (the cylinder's lag: -0.016 px at 0.1, -0.08 at 1).
         max_bend_px: with the quadratic warp, a track ends when the quadratic part moves a corner of its
             patch by more than this; px. A patch on one smooth surface bends little (the rolling
-            cylinder: 0.4 px at the rim over its sweep); one that straddles an edge bends to follow both
-            sides and slides. On the test suite's turning plates, the tracks kept / largest error were
-            affine 92 / 0.58 px and 51 / 0.20 px; quadratic without the check 103 / 1.44 and 59 / 1.00
-            (tracks on the plate's rim); with 2 px 91 / 0.34 and 51 / 0.33; with 1 px 83 / 0.20 and 48 / 0.26.
+            cylinder's curvature, radius 80 px turned 0.6 rad, bends a 21 px patch by about 0.4 px); one
+            that straddles an edge bends to follow both sides and slides. On the test suite's in-plane and
+            perspective plates, tracks kept / largest error: affine 92 / 0.58 px and 51 / 0.20 px;
+            quadratic without the check 103 / 1.44 and 59 / 1.00 (tracks on the plate's rim); with 2 px
+            91 / 0.34 and 51 / 0.33; with 1 px 83 / 0.20 and 48 / 0.26.
     """
 
     max_corners: int = 400
@@ -480,7 +480,7 @@ def _monomials(x: FloatArray, y: FloatArray, half: int) -> FloatArray:
 
 def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float32],
                    config: TrackerConfig) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
-    """Fit each track's first patch to ``image`` by an affine map (inverse-compositional LK).
+    """Fit each track's first patch to ``image`` by an affine map, or a quadratic one (inverse-compositional LK).
 
     Args:
         image: (h, w) uint8 crop of the current frame.
