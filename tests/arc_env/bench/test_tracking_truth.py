@@ -9,20 +9,11 @@ import pytest
 
 from arc_env.bench.tracking_truth import motion_truth, summary, true_pixels
 from arc_env.robot.session import SeenMotion
-from arc_env.sim.scene import Scene, SceneConfig
-from solver import look_at
+from arc_env.sim.scene import Scene
 from solver.observations import KeypointTrack
 
 JOINT = 3
 DELTAS = np.linspace(0.0, 0.4, 9)
-
-
-@pytest.fixture(scope="module")
-def panda():
-    scene = Scene(SceneConfig(width=640, height=360))
-    scene.set_camera(look_at(np.array([1.6, 0.7, 1.0]), np.array([0.3, 0.0, 0.45]), 0.2))
-    yield scene
-    scene.close()
 
 
 def rendered_surface_points(scene: Scene, q: np.ndarray, n: int = 40) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -61,47 +52,47 @@ def rendered_surface_points(scene: Scene, q: np.ndarray, n: int = 40) -> tuple[n
     return body, local, np.array(pixels)
 
 
-def test_a_surface_point_lies_under_its_pixel_at_the_rendered_depth(panda):
-    q = panda.robot.home
-    panda.robot.set_q(q)
-    depth = panda.depth()
-    mask = panda.robot_mask()
+def test_a_surface_point_lies_under_its_pixel_at_the_rendered_depth(panda_scene):
+    q = panda_scene.robot.home
+    panda_scene.robot.set_q(q)
+    depth = panda_scene.depth()
+    mask = panda_scene.robot_mask()
     rows, cols = np.nonzero(mask)
     pick = np.random.default_rng(1).choice(len(rows), 50, replace=False)
     for v, u in zip(rows[pick], cols[pick], strict=True):
-        hit = panda.surface_point_at(np.array([u, v], dtype=float))
+        hit = panda_scene.surface_point_at(np.array([u, v], dtype=float))
         assert hit is not None
         body, local = hit
-        assert body in panda.robot.robot_bodies
-        uv, _ = panda.project_points(np.array([body]), local[None, :], min_depth=0.0)
+        assert body in panda_scene.robot.robot_bodies
+        uv, _ = panda_scene.project_points(np.array([body]), local[None, :], min_depth=0.0)
         np.testing.assert_allclose(uv[0], [u, v], atol=1e-6)
-        point = panda.robot.points_base(np.array([body]), local[None, :])[0]
-        z = (panda.T_camera_base[:3, :3] @ point + panda.T_camera_base[:3, 3])[2]
+        point = panda_scene.robot.points_base(np.array([body]), local[None, :])[0]
+        z = (panda_scene.T_camera_base[:3, :3] @ point + panda_scene.T_camera_base[:3, 3])[2]
         assert abs(z - depth[v, u]) < 1e-3
-    assert panda.surface_point_at(np.array([2.0, 2.0])) is None  # the corner shows floor or sky
+    assert panda_scene.surface_point_at(np.array([2.0, 2.0])) is None  # the corner shows floor or sky
 
 
-def test_true_pixels_follow_the_mesh_points(panda):
-    q = panda.robot.home
-    body, local, pixels = rendered_surface_points(panda, q)
+def test_true_pixels_follow_the_mesh_points(panda_scene):
+    q = panda_scene.robot.home
+    body, local, pixels = rendered_surface_points(panda_scene, q)
     np.testing.assert_allclose(pixels[0], pixels[0].round(), atol=1e-3)  # the construction starts on pixels
     for p in range(len(body)):
         track = KeypointTrack(pixels[:, p], DELTAS)
-        truth = true_pixels(panda, q, JOINT, DELTAS, track)
+        truth = true_pixels(panda_scene, q, JOINT, DELTAS, track)
         assert truth is not None
         np.testing.assert_allclose(truth, pixels[:, p], atol=0.05)  # the depth buffer's precision
 
 
-def test_motion_truth_scores_a_lag(panda):
-    q = panda.robot.home
-    body, local, pixels = rendered_surface_points(panda, q)
+def test_motion_truth_scores_a_lag(panda_scene):
+    q = panda_scene.robot.home
+    body, local, pixels = rendered_surface_points(panda_scene, q)
     exact = [KeypointTrack(pixels[:, p], DELTAS) for p in range(len(body))]
     # The same tracks lagging: each point 1 % short of its true displacement from the first frame.
     lagging = [KeypointTrack(t.pixels[0] + 0.99 * (t.pixels - t.pixels[0]), t.delta) for t in exact]
     rows = []
     for tracks in (exact, lagging):
         seen = SeenMotion(0, q, JOINT, DELTAS, None, tracks, None, None)  # type: ignore[arg-type]
-        rows.append(motion_truth(panda, seen))
+        rows.append(motion_truth(panda_scene, seen))
     assert rows[0].on_links == len(exact) and rows[0].within_1px == 1.0
     assert abs(rows[0].chord_scale) < 1e-3 and rows[0].end_error_px < 0.05
     assert rows[1].chord_scale == pytest.approx(-0.01, abs=1e-3)
