@@ -456,12 +456,10 @@ def _new_tracks(image: ImageArray, pts: NDArray[np.float32], first_id: int,
     hessian = np.matmul(steepest, steepest.transpose(0, 2, 1)).astype(np.float64)
     p = hessian.shape[1]
     hessian += 1e-9 * np.trace(hessian, axis1=1, axis2=2)[:, None, None] * np.eye(p) + 1e-12 * np.eye(p)
+    ridges = np.zeros(n)
     if p == 12 and config.quadratic_ridge > 0:
-        ridge = config.quadratic_ridge * np.trace(hessian[:, 6:, 6:], axis1=1, axis2=2) / 6.0
-        hessian[:, 6:, 6:] += ridge[:, None, None] * np.eye(6)
-        ridges = ridge
-    else:
-        ridges = np.zeros(n)
+        ridges = config.quadratic_ridge * np.trace(hessian[:, 6:, 6:], axis1=1, axis2=2) / 6.0
+        hessian[:, 6:, 6:] += ridges[:, None, None] * np.eye(6)
     template = patch - patch.mean(axis=1, keepdims=True)
     scale = np.maximum(template.std(axis=1), 1e-3).astype(np.float32)
     return _LiveTracks(ids, pts, template, scale, steepest, np.linalg.inv(hessian), A, Q, ridges)
