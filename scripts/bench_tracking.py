@@ -31,6 +31,7 @@ CONFIGS = {
     "no_redetect": TrackerConfig(redetect_every=0),
     "plain_lk": TrackerConfig(affine_iterations=0),
     "quadratic": TrackerConfig(quadratic_warp=True),
+    "gaussian": TrackerConfig(window_sigma_px=4.0),
 }
 
 
