@@ -474,8 +474,7 @@ def _new_tracks(image: ImageArray, pts: NDArray[np.float32], first_id: int,
         rows += [dx * mono[:, i] for i in range(3)] + [dy * mono[:, i] for i in range(3)]
     steepest = np.stack(rows, axis=1)
     root = _root_weights(config)
-    # invariant to a brightness offset (the weighted mean), then weighted
-    steepest = (steepest - _weighted_mean(steepest, root)) * root
+    steepest = _centred(steepest, root)
     hessian = np.matmul(steepest, steepest.transpose(0, 2, 1)).astype(np.float64)
     p = hessian.shape[1]
     hessian += 1e-9 * np.trace(hessian, axis1=1, axis2=2)[:, None, None] * np.eye(p) + 1e-12 * np.eye(p)
@@ -483,24 +482,28 @@ def _new_tracks(image: ImageArray, pts: NDArray[np.float32], first_id: int,
     if p == 12 and config.quadratic_ridge > 0:
         ridges = config.quadratic_ridge * np.trace(hessian[:, 6:, 6:], axis1=1, axis2=2) / 6.0
         hessian[:, 6:, 6:] += ridges[:, None, None] * np.eye(6)
-    template = (patch - _weighted_mean(patch, root)) * root
-    scale = np.maximum(np.sqrt(np.mean(template * template, axis=1)), 1e-3).astype(np.float32)
+    template = _centred(patch, root)
+    # the patch's (weighted) standard deviation: the RMS of the centred, weighted template
+    spread = template.std(axis=1) if root is None else np.sqrt(np.mean(template * template, axis=1))
+    scale = np.maximum(spread, 1e-3).astype(np.float32)
     return _LiveTracks(ids, pts, template, scale, steepest, np.linalg.inv(hessian), A, Q, ridges)
 
 
-def _root_weights(config: TrackerConfig) -> NDArray[np.float32]:
-    """(P,) float32: square roots of the patch pixels' weights (1 everywhere, or a Gaussian of ``window_sigma_px``)."""
-    offsets = _patch_offsets(config.win_size_px)
+def _root_weights(config: TrackerConfig) -> NDArray[np.float32] | None:
+    """(P,) float32: square roots of the patch pixels' Gaussian weights (mean 1), or None for a uniform window."""
     if config.window_sigma_px <= 0:
-        return np.ones(offsets.shape[0], dtype=np.float32)
+        return None
+    offsets = _patch_offsets(config.win_size_px)
     weights = np.exp(-0.5 * np.sum(offsets * offsets, axis=1) / config.window_sigma_px**2)
     return np.sqrt(weights / weights.mean()).astype(np.float32)
 
 
-def _weighted_mean(values: NDArray[np.float32], root: NDArray[np.float32]) -> NDArray[np.float32]:
-    """(..., 1): the mean of ``values`` (..., P) over the patch, weighted by ``root`` squared."""
+def _centred(values: NDArray[np.float32], root: NDArray[np.float32] | None) -> NDArray[np.float32]:
+    """Patches (..., P) minus their (weighted) mean, times the root weights: invariant to a brightness offset."""
+    if root is None:
+        return values - values.mean(axis=-1, keepdims=True)
     weights = root * root
-    return (values @ weights / weights.sum())[..., None].astype(np.float32)
+    return ((values - (values @ weights / weights.sum())[..., None]) * root).astype(np.float32)
 
 
 def _bend_px(Q: FloatArray, half: int) -> FloatArray:
@@ -562,7 +565,7 @@ def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float
         warped = cv2.remap(image, map_x.reshape(m * w, w), map_y.reshape(m * w, w), cv2.INTER_LINEAR,
                            borderMode=cv2.BORDER_REPLICATE)
         warped = warped.reshape(m, -1).astype(np.float32)
-        warped = (warped - _weighted_mean(warped, root)) * root
+        warped = _centred(warped, root)
         # The patch's contrast may have changed (exposure, shading): compare at the best gain.
         gain = np.sum(warped * template, axis=1) / np.maximum(np.sum(template * template, axis=1), 1e-6)
         gain = np.clip(gain, 1.0 / config.max_gain_change, config.max_gain_change)[:, None]
