@@ -477,9 +477,11 @@ def test_the_bend_check_ends_tracks_that_straddle_the_plate_rim():
     assert max_errors(unchecked, sweep).max() > MAX_TOL_PX
 
 
-def test_quadratic_tracks_follow_ground_truth(sweep):
-    # The plates turn rigidly on flat surfaces: the quadratic warp must be as exact there as the affine.
-    result = track_keypoints(sweep.frames, sweep.delta, QUADRATIC)
+@pytest.mark.parametrize("config", [QUADRATIC, GAUSSIAN], ids=["quadratic", "gaussian"])
+def test_patch_model_variants_follow_ground_truth(sweep, config):
+    # The plates turn rigidly on flat surfaces: the quadratic warp and the Gaussian-weighted window must be
+    # as exact there as the uniform affine fit.
+    result = track_keypoints(sweep.frames, sweep.delta, config)
     assert len(result.tracks) >= 30
     errors = np.concatenate([track_errors(t, sweep) for t in result.tracks])
     assert np.median(errors) < MEDIAN_TOL_PX
@@ -493,15 +495,6 @@ def test_a_gaussian_window_halves_the_lag_on_a_rolling_cylinder():
     assert len(errors) >= 30
     assert -0.08 < np.median(errors) < 0.0
     assert np.median(np.abs(errors)) < 0.09
-
-
-def test_gaussian_window_tracks_follow_ground_truth(sweep):
-    # On the flat plates the weighted fit must be as exact as the uniform one.
-    result = track_keypoints(sweep.frames, sweep.delta, GAUSSIAN)
-    assert len(result.tracks) >= 30
-    errors = np.concatenate([track_errors(t, sweep) for t in result.tracks])
-    assert np.median(errors) < MEDIAN_TOL_PX
-    assert errors.max() < MAX_TOL_PX
 
 
 def test_a_very_wide_gaussian_window_is_the_uniform_window(sweep):
