@@ -916,6 +916,20 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
                             sigma_fit, offset, offset_std, correlation, summaries, sigma, sandwich[:6, :6])
 
 
+def reprojection_residuals(tracks: TrackSet, result: RefinementResult) -> FloatArray:
+    """(P, 2) px: every observation's reprojection error under a refinement of ``tracks`` (NaN: a dropped track).
+
+    The refinement's pose, points and, when it estimated one, time offset; unweighted.
+    """
+    s = result.time_offset_s
+    problem = _Problem(tracks, result.T_camera_base, prior_weight=None if s is None else 1.0)
+    R, t = result.T_camera_base[:3, :3], result.T_camera_base[:3, 3]
+    x = np.concatenate([np.zeros(problem.n_pose), (result.points_base @ R.T + t).ravel()])
+    if s is not None:
+        x[6] = s
+    return problem.residuals(x)[:2 * tracks.uv.shape[0]].reshape(-1, 2)
+
+
 def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionSummary], sigma_px: float,
                      config: RefinementConfig | None = None, time_offset_s: float | None = None,
                      n_earlier_residuals: int | None = None) -> RefinementResult:

@@ -13,6 +13,7 @@ from solver.errors import InsufficientMotionsError, InvalidInputError, TimeOffse
 from solver.frames import perturb, pose_difference, pose_errors
 from solver.refinement import (
     RefinementConfig,
+    RefinementResult,
     _Problem,
     _Whitened,
     build_track_set,
@@ -23,6 +24,7 @@ from solver.refinement import (
     pose_covariance,
     pose_information,
     refine,
+    reprojection_residuals,
     screen_start,
     track_observability,
     triangulate_tracks,
@@ -246,6 +248,27 @@ def test_refine_drops_a_jumping_track():
     np.testing.assert_array_equal(result.track_inliers, expected)
     assert np.all(np.isnan(result.points_base[~expected]))
     _assert_closer_than_start_and_consistent(result, scene.T_true)
+
+
+def test_reprojection_residuals_vanish_at_truth_and_show_a_jump():
+    scene = _make_scene(11, **NOISY_SCENE | {"noise_px": 0.0})
+    axis, pivot, tracks = scene.motions[2]
+    uv, delta = tracks[3]
+    jumped = uv.copy()
+    jumped[15:] += np.array([25.0, -15.0]) / FOCAL
+    scene.motions[2] = (axis, pivot, [*tracks[:3], (jumped, delta), *tracks[4:]])
+    track_set = build_track_set(scene.motions, FOCAL)
+    truth = RefinementResult(scene.T_true, np.eye(6), scene.points, np.ones(36, dtype=bool), 0.0, 0.0)
+    res = reprojection_residuals(track_set, truth)
+    on_jumped = track_set.track == 2 * 6 + 3
+    assert res.shape == (track_set.uv.shape[0], 2) and np.max(np.abs(res[~on_jumped])) < 1e-9
+    np.testing.assert_allclose(res[on_jumped][15:], np.tile([-25.0, 15.0], (len(uv) - 15, 1)), atol=1e-6)
+    # a refinement's own residuals: NaN on the track it dropped, its RMS over the rest
+    result = refine(track_set, _start_pose(scene.T_true, 12))
+    res = reprojection_residuals(track_set, result)
+    kept = result.track_inliers[track_set.track]
+    assert not result.track_inliers[2 * 6 + 3] and np.all(np.isnan(res[~kept]))
+    assert np.sqrt(np.mean(res[kept] ** 2)) == pytest.approx(result.rms_px, rel=1e-9)
 
 
 def test_pose_covariance_is_the_pose_block_of_the_full_inverse():
