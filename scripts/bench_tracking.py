@@ -30,8 +30,8 @@ CONFIGS = {
     "default": TrackerConfig(),
     "no_redetect": TrackerConfig(redetect_every=0),
     "plain_lk": TrackerConfig(affine_iterations=0),
-    "quadratic": TrackerConfig(quadratic_warp=True),
-    "gaussian": TrackerConfig(window_sigma_px=4.0),
+    "quadratic": TrackerConfig(quadratic_warp=True, window_sigma_px=0.0),
+    "uniform": TrackerConfig(window_sigma_px=0.0),
 }
 
 
