@@ -23,6 +23,7 @@ reported in pixels through the mean focal length.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -37,6 +38,8 @@ from solver.motion import MotionGeometry
 from solver.observations import CameraIntrinsics, MotionObservation
 
 BoolArray = NDArray[np.bool_]
+#: Starting lines of ``fit_rigid_axis``: (axis (3,) unit, a point of it (3,)) pairs, or a function giving them.
+Starts = list[tuple[FloatArray, FloatArray]] | Callable[[], list[tuple[FloatArray, FloatArray]]]
 
 
 @dataclass(frozen=True)
@@ -756,7 +759,7 @@ def _fit_from_start(uv: list[FloatArray], deltas: list[FloatArray], a: FloatArra
 
 def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
                    config: RigidAxisConfig | None = None,
-                   starts: list[tuple[FloatArray, FloatArray]] | None = None,
+                   starts: Starts | None = None,
                    predicted: tuple[FloatArray, FloatArray] | None = None) -> RigidAxisFit:
     """Fit one rotation by known angles about an unknown line to all tracks of a motion.
 
@@ -767,7 +770,8 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         config: thresholds; ``RigidAxisConfig()`` if None.
         starts: more starting guesses (axis (3,) unit, a point of the axis (3,)), e.g. the conic
             front end's, tried before the relative poses; the fit keeps whichever start ends with the
-            lowest truncated cost (and tries no more once one keeps ``enough_inlier_fraction``).
+            lowest truncated cost (and tries no more once one keeps ``enough_inlier_fraction``); or a
+            function giving them, called only when they are tried (not when the predicted start is taken).
         predicted: the axis (3,) unit and a point of it (3,), camera frame, that a camera pose predicts
             (e.g. ``R_camera_base @ axis_base`` and ``T_camera_base @ point_base``), tried before anything
             else: when its fit stays within ``config.predicted_angle`` of it and keeps ``min_inlier_fraction``
@@ -797,10 +801,9 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     deltas = [all_deltas[t][k] for t, k in zip(fit_set, picks, strict=True)]
     n_fit = len(fit_set)
     angles, frames = _frame_table(deltas)
-    guesses = _line_starts(starts or [])
 
     def candidates():  # the given starts first, then the searches (only if those are not enough)
-        yield from guesses
+        yield from _line_starts((starts() if callable(starts) else starts) or [])
         yield from _grid_starts(uv, deltas, focal, config)
         yield from _relative_pose(uv, frames, angles, focal, config)
 
@@ -853,7 +856,7 @@ def _line_starts(lines: list[tuple[FloatArray, FloatArray]]) -> list[tuple[Float
 
 def rigid_axis_of_motion(obs: MotionObservation, intrinsics: CameraIntrinsics,
                          config: RigidAxisConfig | None = None,
-                         starts: list[tuple[FloatArray, FloatArray]] | None = None,
+                         starts: Starts | None = None,
                          predicted: tuple[FloatArray, FloatArray] | None = None) -> RigidAxisFit:
     """``fit_rigid_axis`` on a motion's tracks in pixels (undistorted through the intrinsics)."""
     uv = [normalized_from_pixels(t.pixels, intrinsics) for t in obs.tracks]
