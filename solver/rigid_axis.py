@@ -333,6 +333,11 @@ class _Tracks:
         return np.add.reduceat(values, self.first, axis=0)
 
 
+#: The identity (3, 3), read-only.
+_EYE3 = np.eye(3)
+_EYE3.flags.writeable = False
+
+
 def _skew(v: FloatArray) -> FloatArray:
     """Cross-product matrices (..., 3, 3) of vectors v (..., 3): skew(v) @ w = v x w."""
     S = np.zeros(v.shape[:-1] + (3, 3))
@@ -449,10 +454,12 @@ def _damping_scale(H: FloatArray) -> FloatArray:
 
 def _turn(w: FloatArray, a: FloatArray, p: FloatArray) -> tuple[FloatArray, FloatArray]:
     """The line's frame (a, p) turned by the small rotation vector w (3,), kept orthonormal."""
-    angle = float(np.linalg.norm(w))
+    angle = float(np.sqrt(w @ w))
     if angle > 0:
-        R = _rotations_of(np.array([[np.cos(angle), np.sin(angle), 1.0]]), w / angle)[0]
-        a, p = R @ a, R @ p
+        k = w / angle
+        c, s = np.cos(angle), np.sin(angle)
+        K = _EYE3 * c + _skew(k) * s + np.outer(k, k) * (1.0 - c)  # Rodrigues
+        a, p = K @ a, K @ p
     a = a / np.linalg.norm(a)
     p = p - a * (a @ p)
     return a, p / np.linalg.norm(p)
@@ -464,7 +471,7 @@ class _ArrowSystem:
     H is arrow-shaped: H_gg (3, 3), H_gp (T, 3, 3), H_pp (T, 3, 3) with the tracks' blocks independent.
     Each track's block is diagonalized once (H_pp = Q diag(lam) Q^T), and the per-track unknowns are
     handled in those eigenbases, all 3T at once (``y = Q^T x_p``, flattened): there the points' block is
-    diagonal, so any alpha costs one 3 x 3 solve (the Schur complement over the points), and lengths are
+    diagonal, so any alpha costs one 3 x 3 inverse (the Schur complement over the points), and lengths are
     the same as in the original coordinates (``to_eigen``, ``from_eigen`` convert).
     """
 
@@ -491,17 +498,17 @@ class _ArrowSystem:
         return (self.Q @ y.reshape(-1, 3, 1))[..., 0]
 
     def factor(self, alpha: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """For one alpha: 1 / (lam + alpha) (3T,), W scaled by it (3T, 3), the Schur complement (3, 3)."""
+        """For one alpha: 1 / (lam + alpha) (3T,), W scaled by it (3T, 3), the Schur complement's inverse (3, 3)."""
         inv = 1.0 / (self.lam + alpha)
         Wi = self.W * inv[:, None]
-        return inv, Wi, self.H_gg + alpha * np.eye(3) - self.W.T @ Wi
+        return inv, Wi, np.linalg.inv(self.H_gg + alpha * _EYE3 - self.W.T @ Wi)
 
     @staticmethod
     def solve(factors: tuple[FloatArray, FloatArray, FloatArray], b_g: FloatArray, b_y: FloatArray
               ) -> tuple[FloatArray, FloatArray]:
         """x_g (3,), y (3T,) for b_g (3,), b_y (3T,) (eigenbases), with ``factor``'s factors."""
-        inv, Wi, S = factors
-        x_g = np.linalg.solve(S, b_g - Wi.T @ b_y)
+        inv, Wi, S_inv = factors
+        x_g = S_inv @ (b_g - Wi.T @ b_y)
         return x_g, inv * b_y - Wi @ x_g
 
 
