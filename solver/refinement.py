@@ -649,11 +649,10 @@ def _summary_offsets(summaries: Sequence[MotionSummary], T0: FloatArray, s0: flo
 
     To first order in the rotations' difference (they are within a few sigma of each other).
     """
-    rows = []
-    for m in summaries:
-        xi = pose_difference(m.T_lin, T0)
-        rows.append(xi if s0 is None else np.append(xi, s0 - (m.time_offset_lin or 0.0)))
-    return np.array(rows)
+    xi = pose_difference(np.array([m.T_lin for m in summaries]), T0)
+    if s0 is None:
+        return xi
+    return np.column_stack([xi, [s0 - (m.time_offset_lin or 0.0) for m in summaries]])
 
 
 def summaries_prior(summaries: Sequence[MotionSummary], T0: FloatArray, s0: float | None = None) -> PosePrior:
