@@ -3,11 +3,10 @@
 One joint turns by a known delta, so every point on the moving links moves as
 ``X(delta) = R(a, delta) (X0 - p) + p`` in the camera frame: a rotation by the *known* angle about an
 unknown line (direction ``a``, point ``p``). This module fits that model to all tracks of one motion at
-once, starting from given lines and an exhaustive search over axis directions (``_grid_starts``), and when
-no fit from those is usable, from the relative pose of the two frames that most tracks share (OpenCV's
-essential matrix with RANSAC and ``recoverPose``), then refining ``a``, ``p`` and every track's point by
-robust least squares over all frames. Only the line's distance from the camera is unknown (the scene's scale),
-so ``p`` is fixed to unit distance.
+once, starting from given lines, an exhaustive search over axis directions (``_grid_starts``) and the
+relative pose of the two frames that most tracks share (OpenCV's essential matrix with RANSAC and
+``recoverPose``), then refining ``a``, ``p`` and every track's point by robust least squares over all frames.
+Only the line's distance from the camera is unknown (the scene's scale), so ``p`` is fixed to unit distance.
 
 Two uses:
 
@@ -77,10 +76,13 @@ class RigidAxisConfig:
         grid_starts: most starts the grid search hands to the fit (best first, 15 degrees apart); count.
         relative_pose_if_needed: the relative-pose starts (``_relative_pose``: essential matrices, each costing
             a RANSAC) are tried only when no fit from the earlier starts (the given ones and the grid search's)
-            keeps ``min_inlier_fraction`` (and ``min_tracks``) of the fit tracks; False: whenever the search
-            runs. On the 10 captured realistic episodes of issue 18 (82 searches) a relative pose alone
-            reached the chosen fit in 2 searches, while the relative poses took about 40 % of the rigid
-            front end's time.
+            keeps ``min_inlier_fraction`` (and ``min_tracks``) of the fit tracks; False (the default): whenever
+            the search runs. On the 10 captured realistic episodes of issue 18 it cut the rigid front end's CPU
+            from 2.23 to 1.57 s per episode (median; add_motion 3.60 -> 2.93 s) but changed 6 motions' fits:
+            1280x720 Panda pose 1 ended at 1.6e-3 rad / 20.3 mm instead of 9.6e-4 / 17.5 mm at 10 motions
+            and with a 1-sigma of 7.4 instead of 4.8 mm at 25, 1920x1080 pose 2 at 4.77e-4 instead of 4.60e-4
+            rad at 25 (the same with seeds 0 and 1): a relative pose alone reached the chosen fit in 2 of 82
+            searches. Off until such a start's value is judged on more episodes.
         predicted_angle: rad; a predicted start (``fit_rigid_axis``'s ``predicted``: the axis a known camera
             pose gives) is taken, and no other start tried, when its fit ends within this angle of the
             prediction and keeps at least ``min_inlier_fraction`` (and ``min_tracks``) of the fit tracks.
@@ -101,7 +103,7 @@ class RigidAxisConfig:
     noise_factor: float = 0.0
     noise_quantile: float = 0.25
     predicted_angle: float = 0.05
-    relative_pose_if_needed: bool = True
+    relative_pose_if_needed: bool = False
 
     def __post_init__(self) -> None:
         if self.min_tracks < 5:

@@ -386,17 +386,19 @@ def test_starts_given_as_a_function_are_asked_for_only_when_tried():
 
 
 def test_the_relative_poses_are_tried_only_when_no_earlier_fit_is_usable(monkeypatch):
-    """The grid's fit keeps the rigid half of the tracks: no essential matrix is computed, unless asked for
-    (then the same fit wins); when no fit can keep enough tracks (min_inlier_fraction 0.9), they are tried."""
+    """With ``relative_pose_if_needed``, the grid's fit keeps the rigid half of the tracks: no essential matrix is
+    computed (by default they are, and the same fit wins); when no fit can keep enough tracks
+    (min_inlier_fraction 0.9), they are tried."""
     obs, axis = _far_scene(0)
     calls = _count_searches(monkeypatch)
-    fit = rigid_axis_of_motion(obs, CAMERA)
+    if_needed = RigidAxisConfig(relative_pose_if_needed=True)
+    fit = rigid_axis_of_motion(obs, CAMERA, if_needed)
     assert calls == {"grid": 1, "relative": 0}
-    always = rigid_axis_of_motion(obs, CAMERA, RigidAxisConfig(relative_pose_if_needed=False))
+    always = rigid_axis_of_motion(obs, CAMERA)
     assert calls == {"grid": 2, "relative": 1}
     assert _angle(fit.axis_cam, axis) < np.radians(1.0) and _angle(always.axis_cam, fit.axis_cam) < 1e-6
     with pytest.raises(DegenerateMotionError, match="move rigidly together"):
-        rigid_axis_of_motion(obs, CAMERA, RigidAxisConfig(min_inlier_fraction=0.9))
+        rigid_axis_of_motion(obs, CAMERA, RigidAxisConfig(relative_pose_if_needed=True, min_inlier_fraction=0.9))
     assert calls == {"grid": 3, "relative": 2}
 
 
