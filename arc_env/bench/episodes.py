@@ -151,7 +151,8 @@ def front_end_axes(reports: Iterable[MotionReport]) -> tuple[int, int]:
 
     The conics gave one when the motion reached the front ends (``front_end`` is set: a motion
     rejected as "nothing moved" never does, and its empty ``conics`` says nothing) and ``conics``
-    holds no reason; the rigid front end when ``front_end == "rigid"`` (its axis is then the one used).
+    holds no reason (nor ``solver.pipeline.CONICS_NOT_RUN``: they were not needed); the rigid front end
+    when ``front_end == "rigid"`` (its axis is then the one used).
     """
     conics = rigid = 0
     for r in reports:
