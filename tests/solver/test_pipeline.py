@@ -134,6 +134,30 @@ def test_the_refined_pose_predicts_the_rigid_front_ends_start():
             assert r.conics == alone == runs[False].reports[k].conics
 
 
+def test_conics_always_reports_the_paper_front_end_on_every_motion_and_changes_nothing_else():
+    rng = np.random.default_rng(4)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.3, outlier_fraction=0.1, tracks_per_motion=25),
+                           rng)
+    observations = [scene.random_motion(rng).observation for _ in range(8)]
+    runs = {}
+    for always in (False, True):
+        runs[always] = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(conics_always=always))
+        for obs in observations:
+            runs[always].add_motion(obs)
+    lazy, full = runs[False], runs[True]
+    assert any(r.conics == CONICS_NOT_RUN for r in lazy.reports)
+    np.testing.assert_array_equal(full.state.T_camera_base, lazy.state.T_camera_base)
+    assert [r.front_end for r in full.reports] == [r.front_end for r in lazy.reports]
+    for k, (obs, r) in enumerate(zip(observations, full.reports, strict=True)):
+        try:
+            estimate_motion_geometry(obs, K, MotionConfig(), np.random.default_rng([0, k]))
+            alone = ""
+        except DegenerateMotionError as exc:
+            alone = str(exc)
+        assert r.conics == alone
+
+
 def test_same_input_gives_identical_estimates():
     a, _ = _episode(3, 5, SyntheticConfig(tracks_per_motion=15))
     b, _ = _episode(3, 5, SyntheticConfig(tracks_per_motion=15))
