@@ -55,14 +55,26 @@ class AxisCorrespondence:
     plane_normal: FloatArray
 
 
-def _rows(c: AxisCorrespondence, depth: float) -> tuple[FloatArray, FloatArray]:
-    """Rows of H (4, 9) and K (4, 3) for one motion; coplanarity row divided by ``depth`` (m)."""
-    H = np.zeros((4, 9))
-    K = np.zeros((4, 3))
-    H[:3] = skew(c.axis_cam) @ np.kron(c.axis_base[None, :], np.eye(3))
-    H[3] = np.kron(c.point_base, c.plane_normal) / depth
-    K[3] = c.plane_normal / depth
-    return H, K
+def _rows(correspondences: Sequence[AxisCorrespondence], depths: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Rows of H (4N, 9) and K (4N, 3), four per motion; each coplanarity row divided by its depth (N,) m.
+
+    A motion's collinearity rows are [A^c]x (a_b^T kron I): entry (i, 3 j + k) is [A^c]x[i, k] a_b[j]; its
+    coplanarity row is (d_b kron rho) / depth in H and rho / depth in K.
+    """
+    n = len(correspondences)
+    axis_cam = np.array([c.axis_cam for c in correspondences])
+    axis_base = np.array([c.axis_base for c in correspondences])
+    point_base = np.array([c.point_base for c in correspondences])
+    normal = np.array([c.plane_normal for c in correspondences])
+    skews = np.zeros((n, 3, 3))
+    skews[:, 0, 1], skews[:, 0, 2], skews[:, 1, 2] = -axis_cam[:, 2], axis_cam[:, 1], -axis_cam[:, 0]
+    skews[:, 1, 0], skews[:, 2, 0], skews[:, 2, 1] = axis_cam[:, 2], -axis_cam[:, 1], axis_cam[:, 0]
+    H = np.zeros((n, 4, 9))
+    K = np.zeros((n, 4, 3))
+    H[:, :3] = (skews[:, :, None, :] * axis_base[:, None, :, None]).reshape(n, 3, 9)
+    H[:, 3] = (point_base[:, :, None] * normal[:, None, :]).reshape(n, 9) / depths[:, None]
+    K[:, 3] = normal / depths[:, None]
+    return H.reshape(4 * n, 9), K.reshape(4 * n, 3)
 
 
 def _translation(correspondences: Sequence[AxisCorrespondence], R: FloatArray,
@@ -189,9 +201,7 @@ def solve_linear(correspondences: Sequence[AxisCorrespondence],
     depths = np.ones(n) if depths is None else np.asarray(depths, dtype=np.float64)
     if depths.shape != (n,):
         raise InvalidInputError(f"depths must have shape ({n},), got {depths.shape}")
-    blocks = [_rows(c, d) for c, d in zip(correspondences, depths, strict=True)]
-    H = np.concatenate([b[0] for b in blocks])
-    K = np.concatenate([b[1] for b in blocks])
+    H, K = _rows(correspondences, depths)
     sv_K = np.linalg.svd(K, compute_uv=False)
     if sv_K[-1] < 1e-6 * sv_K[0]:
         raise UnobservablePoseError(

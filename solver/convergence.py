@@ -58,7 +58,7 @@ class ConvergenceMonitor:
         if len(self._history) < self.config.window:
             return None
         newest = self._history[-1]
-        xi = np.array([pose_difference(newest, T) for T in self._history])
+        xi = pose_difference(newest, np.array(self._history))
         return np.ptp(xi, axis=0)
 
     @property

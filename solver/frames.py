@@ -67,9 +67,12 @@ def perturb(T: FloatArray, xi: FloatArray) -> FloatArray:
 
 
 def pose_difference(T_est: FloatArray, T_true: FloatArray) -> FloatArray:
-    """The perturbation xi (6,) with perturb(T_est, xi) == T_true: (rad, rad, rad, m, m, m)."""
-    omega = Rotation.from_matrix(T_true[:3, :3] @ T_est[:3, :3].T).as_rotvec()
-    return np.concatenate([omega, T_true[:3, 3] - T_est[:3, 3]])
+    """The perturbation xi (6,) with perturb(T_est, xi) == T_true: (rad, rad, rad, m, m, m).
+
+    Either pose may be a stack (..., 4, 4): then xi (..., 6), one per pose.
+    """
+    omega = Rotation.from_matrix(T_true[..., :3, :3] @ np.swapaxes(T_est[..., :3, :3], -1, -2)).as_rotvec()
+    return np.concatenate([omega, T_true[..., :3, 3] - T_est[..., :3, 3]], axis=-1)
 
 
 def pose_errors(T_est: FloatArray, T_true: FloatArray) -> tuple[float, float]:

@@ -15,7 +15,7 @@ and screened by short robust passes (ours: ``CalibratorConfig.family_start``).
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -79,6 +79,10 @@ class CalibratorConfig:
             realistic real2 no pose in all three; clean painted paint0 1.90e-4 / 0.11 mm (conics
             only) against 4.84e-4 / 0.32 mm (every motion): it wins on realistic images, where most
             tracks slide, and costs some accuracy on painted ones, where nearly all are rigid.
+        conics_always: run the paper's conic front end on every motion, also where the rigid front end does
+            not need it (its fit from the predicted axis was taken: ``CONICS_NOT_RUN``), for its report
+            (``MotionReport.conics``; the benchmarks count the motions each front end gives an axis). The
+            estimate is the same either way; it costs about 0.8 s CPU per 25-motion realistic episode.
         predicted_start: once there is a refined pose, the rigid front end first tries the motion's axis and
             reference ray that the pose predicts (R @ axis_base, R @ point_base + t) as its start, and skips its
             searches when the tracks' own fit from there stays near it (``fit_rigid_axis``'s ``predicted``,
@@ -136,6 +140,7 @@ class CalibratorConfig:
     motion: MotionConfig = field(default_factory=MotionConfig)
     rigid_axis: RigidAxisConfig | None = field(default_factory=RigidAxisConfig)
     rigid_always: bool = True
+    conics_always: bool = False
     predicted_start: bool = True
     refinement: RefinementConfig = field(default_factory=RefinementConfig)
     convergence: ConvergenceConfig = field(default_factory=ConvergenceConfig)
@@ -179,7 +184,7 @@ class MotionReport:
         stage_one: "" or why stage one (no estimate needed) rejected its axis.
         n_inlier_tracks: tracks the bundle adjustment kept.
         front_end: which front end gave the axis: "rigid", "conics" or "" (none).
-        conics: "" or why the conic front end gave no axis.
+        conics: "" or why the conic front end gave no axis (``CONICS_NOT_RUN`` when it was not needed).
         rigid: "" or why the rigid front end gave no axis (also "" when it did not run: off, or the
             conics gave an axis and ``CalibratorConfig.rigid_always`` is False).
         n_inconsistent_tracks: tracks the rigid front end dropped (they do not move rigidly with the
@@ -258,6 +263,11 @@ class _Motion:
     # (uv normalized, delta rad, joint velocity rad/s or None) subsampled, moving only
     tracks: list[tuple[FloatArray, FloatArray, FloatArray | None]]
     points: FloatArray | None = None  # (len(tracks), 3) last refined points, NaN where unknown
+
+
+#: ``MotionReport.conics`` of a motion whose conics did not run: with ``CalibratorConfig.rigid_always`` they
+#: serve as the rigid front end's start and fallback, and its fit from the refined pose's prediction needs neither.
+CONICS_NOT_RUN = "not run: the rigid front end's fit from the predicted axis was taken"
 
 
 #: Focal-length scales at which ``Calibrator.focal_check`` repeats the bundle adjustment.
@@ -422,14 +432,25 @@ class Calibrator:
                              f"(need {mcfg.min_tracks})")
             self._motions.append(None)
         else:
-            try:
-                geometry = estimate_motion_geometry(obs, self.intrinsics, mcfg, self._rng)
-                report.front_end = "conics"
-            except DegenerateMotionError as exc:
-                geometry = None
-                report.conics = str(exc)
-            if self.config.rigid_axis is not None and (geometry is None or self.config.rigid_always):
-                moving, geometry = self._rigid_front_end(obs, moving, geometry, report, axis, point)
+            found: list[MotionGeometry | None] = []
+
+            def conics() -> MotionGeometry | None:  # the conic front end, run once and only when asked
+                if not found:
+                    found.append(self._conic_front_end(obs, report))
+                return found[0]
+
+            if self.config.rigid_axis is not None and self.config.rigid_always:
+                moving, geometry = self._rigid_front_end(obs, moving, conics, report, axis, point)
+                if not found and self.config.conics_always:  # for the report only: the rigid axis stays
+                    front_end = report.front_end
+                    conics()
+                    report.front_end = front_end
+                elif not found:
+                    report.conics = CONICS_NOT_RUN
+            else:
+                geometry = conics()
+                if self.config.rigid_axis is not None and geometry is None:
+                    moving, geometry = self._rigid_front_end(obs, moving, conics, report, axis, point)
             if geometry is None:
                 report.stage_one = "; ".join(r for r in (report.conics, report.rigid) if r)
             cap_tracks, cap_frames = self.config.max_tracks_per_motion, self.config.max_frames_per_track
@@ -802,17 +823,38 @@ class Calibrator:
         m = self._motions[index]
         return m.geometry if m is not None else None
 
+    def _conic_front_end(self, obs: MotionObservation, report: MotionReport) -> MotionGeometry | None:
+        """Stage one's conics (``estimate_motion_geometry``): the motion's geometry, or None and ``report.conics`` why.
+
+        Its random choices come from a generator of the seed and the motion's index alone, so whether the conics
+        ran on the motions before (``CONICS_NOT_RUN``) does not change them.
+        """
+        rng = np.random.default_rng([self.config.seed, report.index])
+        try:
+            geometry = estimate_motion_geometry(obs, self.intrinsics, self.config.motion, rng)
+        except DegenerateMotionError as exc:
+            report.conics = str(exc)
+            return None
+        report.front_end = "conics"
+        return geometry
+
     def _rigid_front_end(self, obs: MotionObservation, moving: list[KeypointTrack],
-                         conics: MotionGeometry | None, report: MotionReport, axis_base: FloatArray,
+                         conics: Callable[[], MotionGeometry | None], report: MotionReport, axis_base: FloatArray,
                          point_base: FloatArray) -> tuple[list[KeypointTrack], MotionGeometry | None]:
         """Run the rigid front end: (the tracks that move rigidly, the motion's geometry).
 
-        ``axis_base`` (3,) unit and ``point_base`` (3,) m: the motion's joint axis in the base frame, whose
-        image under the refined pose (if any, and ``CalibratorConfig.predicted_start``) is tried first.
-        Without a fit (too few tracks, no shared frames, an unfixed axis) the tracks and the conics'
+        ``conics`` gives the conic front end's geometry (or None), running it when first called: its axis is a
+        start of the rigid fit, and the fallback when the fit fails. ``axis_base`` (3,) unit and ``point_base``
+        (3,) m: the motion's joint axis in the base frame, whose image under the refined pose (if any, and
+        ``CalibratorConfig.predicted_start``) is tried first; when the fit from it is taken, the conics are not
+        needed. Without a fit (too few tracks, no shared frames, an unfixed axis) the tracks and the conics'
         geometry stay as they are and ``report.rigid`` says why.
         """
-        starts = [] if conics is None else [(conics.axis_cam, conics.reference_cam)]
+
+        def starts() -> list[tuple[FloatArray, FloatArray]]:
+            geometry = conics()
+            return [] if geometry is None else [(geometry.axis_cam, geometry.reference_cam)]
+
         predicted = None
         if self.config.predicted_start and self._refined is not None:
             T = self._refined.T_camera_base
@@ -822,7 +864,7 @@ class Calibrator:
                                        self.config.rigid_axis, starts, predicted)
         except DegenerateMotionError as exc:
             report.rigid = str(exc)
-            return moving, conics
+            return moving, conics()
         report.n_inconsistent_tracks = int(np.sum(~fit.track_inliers))
         report.rigid_predicted = fit.from_prediction
         report.front_end = "rigid"

@@ -3,10 +3,10 @@
 One joint turns by a known delta, so every point on the moving links moves as
 ``X(delta) = R(a, delta) (X0 - p) + p`` in the camera frame: a rotation by the *known* angle about an
 unknown line (direction ``a``, point ``p``). This module fits that model to all tracks of one motion at
-once, starting from the relative pose of the two frames that most tracks share (OpenCV's essential
-matrix with RANSAC and ``recoverPose``), then refining ``a``, ``p`` and every track's point by robust
-least squares over all frames. Only the line's distance from the camera is unknown (the scene's scale),
-so ``p`` is fixed to unit distance.
+once, starting from given lines, an exhaustive search over axis directions (``_grid_starts``) and the
+relative pose of the two frames that most tracks share (OpenCV's essential matrix with RANSAC and
+``recoverPose``), then refining ``a``, ``p`` and every track's point by robust least squares over all frames.
+Only the line's distance from the camera is unknown (the scene's scale), so ``p`` is fixed to unit distance.
 
 Two uses:
 
@@ -23,6 +23,7 @@ reported in pixels through the mean focal length.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -37,6 +38,8 @@ from solver.motion import MotionGeometry
 from solver.observations import CameraIntrinsics, MotionObservation
 
 BoolArray = NDArray[np.bool_]
+#: Starting lines of ``fit_rigid_axis``: (axis (3,) unit, a point of it (3,)) pairs, or a function giving them.
+Starts = list[tuple[FloatArray, FloatArray]] | Callable[[], list[tuple[FloatArray, FloatArray]]]
 
 
 @dataclass(frozen=True)
@@ -71,6 +74,15 @@ class RigidAxisConfig:
         grid_directions: axis directions of the exhaustive start search (``_grid_starts``: evenly
             over the sphere, about 4.5 degrees apart at 2000); count, 0 = no grid search.
         grid_starts: most starts the grid search hands to the fit (best first, 15 degrees apart); count.
+        relative_pose_if_needed: the relative-pose starts (``_relative_pose``: essential matrices, each costing
+            a RANSAC) are tried only when no fit from the earlier starts (the given ones and the grid search's)
+            keeps ``min_inlier_fraction`` (and ``min_tracks``) of the fit tracks; False (the default): whenever
+            the search runs. On the 10 captured realistic episodes of issue 18 it cut the rigid front end's CPU
+            from 2.23 to 1.57 s per episode (median; add_motion 3.60 -> 2.93 s) but changed 6 motions' fits:
+            1280x720 Panda pose 1 ended at 1.6e-3 rad / 20.3 mm instead of 9.6e-4 / 17.5 mm at 10 motions
+            and with a 1-sigma of 7.4 instead of 4.8 mm at 25, 1920x1080 pose 2 at 4.77e-4 instead of 4.60e-4
+            rad at 25 (the same with seeds 0 and 1): a relative pose alone reached the chosen fit in 2 of 82
+            searches. Off until such a start's value is judged on more episodes.
         predicted_angle: rad; a predicted start (``fit_rigid_axis``'s ``predicted``: the axis a known camera
             pose gives) is taken, and no other start tried, when its fit ends within this angle of the
             prediction and keeps at least ``min_inlier_fraction`` (and ``min_tracks``) of the fit tracks.
@@ -91,6 +103,7 @@ class RigidAxisConfig:
     noise_factor: float = 0.0
     noise_quantile: float = 0.25
     predicted_angle: float = 0.05
+    relative_pose_if_needed: bool = False
 
     def __post_init__(self) -> None:
         if self.min_tracks < 5:
@@ -322,6 +335,11 @@ class _Tracks:
         return np.add.reduceat(values, self.first, axis=0)
 
 
+#: The identity (3, 3), read-only.
+_EYE3 = np.eye(3)
+_EYE3.flags.writeable = False
+
+
 def _skew(v: FloatArray) -> FloatArray:
     """Cross-product matrices (..., 3, 3) of vectors v (..., 3): skew(v) @ w = v x w."""
     S = np.zeros(v.shape[:-1] + (3, 3))
@@ -438,10 +456,12 @@ def _damping_scale(H: FloatArray) -> FloatArray:
 
 def _turn(w: FloatArray, a: FloatArray, p: FloatArray) -> tuple[FloatArray, FloatArray]:
     """The line's frame (a, p) turned by the small rotation vector w (3,), kept orthonormal."""
-    angle = float(np.linalg.norm(w))
+    angle = float(np.sqrt(w @ w))
     if angle > 0:
-        R = _rotations_of(np.array([[np.cos(angle), np.sin(angle), 1.0]]), w / angle)[0]
-        a, p = R @ a, R @ p
+        k = w / angle
+        c, s = np.cos(angle), np.sin(angle)
+        K = _EYE3 * c + _skew(k) * s + np.outer(k, k) * (1.0 - c)  # Rodrigues
+        a, p = K @ a, K @ p
     a = a / np.linalg.norm(a)
     p = p - a * (a @ p)
     return a, p / np.linalg.norm(p)
@@ -453,7 +473,7 @@ class _ArrowSystem:
     H is arrow-shaped: H_gg (3, 3), H_gp (T, 3, 3), H_pp (T, 3, 3) with the tracks' blocks independent.
     Each track's block is diagonalized once (H_pp = Q diag(lam) Q^T), and the per-track unknowns are
     handled in those eigenbases, all 3T at once (``y = Q^T x_p``, flattened): there the points' block is
-    diagonal, so any alpha costs one 3 x 3 solve (the Schur complement over the points), and lengths are
+    diagonal, so any alpha costs one 3 x 3 inverse (the Schur complement over the points), and lengths are
     the same as in the original coordinates (``to_eigen``, ``from_eigen`` convert).
     """
 
@@ -480,17 +500,17 @@ class _ArrowSystem:
         return (self.Q @ y.reshape(-1, 3, 1))[..., 0]
 
     def factor(self, alpha: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """For one alpha: 1 / (lam + alpha) (3T,), W scaled by it (3T, 3), the Schur complement (3, 3)."""
+        """For one alpha: 1 / (lam + alpha) (3T,), W scaled by it (3T, 3), the Schur complement's inverse (3, 3)."""
         inv = 1.0 / (self.lam + alpha)
         Wi = self.W * inv[:, None]
-        return inv, Wi, self.H_gg + alpha * np.eye(3) - self.W.T @ Wi
+        return inv, Wi, np.linalg.inv(self.H_gg + alpha * _EYE3 - self.W.T @ Wi)
 
     @staticmethod
     def solve(factors: tuple[FloatArray, FloatArray, FloatArray], b_g: FloatArray, b_y: FloatArray
               ) -> tuple[FloatArray, FloatArray]:
         """x_g (3,), y (3T,) for b_g (3,), b_y (3T,) (eigenbases), with ``factor``'s factors."""
-        inv, Wi, S = factors
-        x_g = np.linalg.solve(S, b_g - Wi.T @ b_y)
+        inv, Wi, S_inv = factors
+        x_g = S_inv @ (b_g - Wi.T @ b_y)
         return x_g, inv * b_y - Wi @ x_g
 
 
@@ -756,7 +776,7 @@ def _fit_from_start(uv: list[FloatArray], deltas: list[FloatArray], a: FloatArra
 
 def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
                    config: RigidAxisConfig | None = None,
-                   starts: list[tuple[FloatArray, FloatArray]] | None = None,
+                   starts: Starts | None = None,
                    predicted: tuple[FloatArray, FloatArray] | None = None) -> RigidAxisFit:
     """Fit one rotation by known angles about an unknown line to all tracks of a motion.
 
@@ -767,7 +787,8 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         config: thresholds; ``RigidAxisConfig()`` if None.
         starts: more starting guesses (axis (3,) unit, a point of the axis (3,)), e.g. the conic
             front end's, tried before the relative poses; the fit keeps whichever start ends with the
-            lowest truncated cost (and tries no more once one keeps ``enough_inlier_fraction``).
+            lowest truncated cost (and tries no more once one keeps ``enough_inlier_fraction``); or a
+            function giving them, called only when they are tried (not when the predicted start is taken).
         predicted: the axis (3,) unit and a point of it (3,), camera frame, that a camera pose predicts
             (e.g. ``R_camera_base @ axis_base`` and ``T_camera_base @ point_base``), tried before anything
             else: when its fit stays within ``config.predicted_angle`` of it and keeps ``min_inlier_fraction``
@@ -797,18 +818,19 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     deltas = [all_deltas[t][k] for t, k in zip(fit_set, picks, strict=True)]
     n_fit = len(fit_set)
     angles, frames = _frame_table(deltas)
-    guesses = _line_starts(starts or [])
+
+    usable = max(config.min_tracks, config.min_inlier_fraction * n_fit)  # fewest fit tracks a usable fit keeps
 
     def candidates():  # the given starts first, then the searches (only if those are not enough)
-        yield from guesses
+        yield from _line_starts((starts() if callable(starts) else starts) or [])
         yield from _grid_starts(uv, deltas, focal, config)
-        yield from _relative_pose(uv, frames, angles, focal, config)
+        if not config.relative_pose_if_needed or best is None or best[5] < usable:  # (best: the loop's below)
+            yield from _relative_pose(uv, frames, angles, focal, config)
 
     best = None
     for a0, p0 in _line_starts([predicted] if predicted is not None else []):
         fit = _fit_from_start(uv, deltas, a0, p0, focal, config, noise_px)
-        if (fit[5] >= max(config.min_tracks, config.min_inlier_fraction * n_fit)
-                and fit[1] @ a0 >= np.cos(config.predicted_angle)):
+        if fit[5] >= usable and fit[1] @ a0 >= np.cos(config.predicted_angle):
             best = fit
     from_prediction = best is not None
     for a0, p0 in candidates() if best is None else ():
@@ -853,7 +875,7 @@ def _line_starts(lines: list[tuple[FloatArray, FloatArray]]) -> list[tuple[Float
 
 def rigid_axis_of_motion(obs: MotionObservation, intrinsics: CameraIntrinsics,
                          config: RigidAxisConfig | None = None,
-                         starts: list[tuple[FloatArray, FloatArray]] | None = None,
+                         starts: Starts | None = None,
                          predicted: tuple[FloatArray, FloatArray] | None = None) -> RigidAxisFit:
     """``fit_rigid_axis`` on a motion's tracks in pixels (undistorted through the intrinsics)."""
     uv = [normalized_from_pixels(t.pixels, intrinsics) for t in obs.tracks]

@@ -60,7 +60,7 @@ from arc_env.robot.session import UsableCriteria, state_unusable_reason
 from arc_env.sim.imaging import APPEARANCES, REALISMS, realism_settings
 from solver.arrays import FloatArray
 from solver.errors import ArcCalibError, InvalidInputError
-from solver.pipeline import CalibrationState, MotionReport
+from solver.pipeline import CalibrationState, CalibratorConfig, MotionReport
 
 #: Selection methods an episode can use: ARC-Calib with either planner, or the marker baseline.
 METHODS = ("random", "informed", "marker")
@@ -151,7 +151,8 @@ def front_end_axes(reports: Iterable[MotionReport]) -> tuple[int, int]:
 
     The conics gave one when the motion reached the front ends (``front_end`` is set: a motion
     rejected as "nothing moved" never does, and its empty ``conics`` says nothing) and ``conics``
-    holds no reason; the rigid front end when ``front_end == "rigid"`` (its axis is then the one used).
+    holds no reason (nor ``solver.pipeline.CONICS_NOT_RUN``: they were not needed); the rigid front end
+    when ``front_end == "rigid"`` (its axis is then the one used).
     """
     conics = rigid = 0
     for r in reports:
@@ -207,7 +208,10 @@ def make_env(spec: EpisodeSpec, board: bool = False):  # noqa: ANN202  (ArcCalib
                                          marker_board=MarkerBoard() if board else None,
                                          appearance_seed=spec.rng_seed,
                                          **realism_settings(spec.realism, spec.appearance)),
-                       max_motions=spec.motions, oracle_keypoints=spec.oracle, terminate_on_convergence=False)
+                       max_motions=spec.motions, oracle_keypoints=spec.oracle, terminate_on_convergence=False,
+                       # the paper's conics on every motion, so ``axes_conics`` counts them all (same estimate;
+                       # the solver's time includes them)
+                       calibrator=CalibratorConfig(conics_always=True))
     env = ArcCalibEnv(config)
     target, scale = benchmark_view(env.scene.robot)
     obs, _ = env.reset(seed=spec.rng_seed,

@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from solver.calibration import (
     MIN_OBSERVABILITY,
     AxisCorrespondence,
+    _rows,
     check_observable,
     consistency_errors,
     family_offsets,
@@ -19,6 +20,7 @@ from solver.calibration import (
     solve_minimal,
 )
 from solver.errors import InsufficientMotionsError, UnobservablePoseError
+from solver.frames import skew
 from solver.kinematics import PANDA
 from tests.solver.scene import perpendicular, random_pose, random_unit, unit
 
@@ -302,3 +304,19 @@ def test_family_offsets_place_the_robot_at_the_distances_in_front(T_true, rng):
     # nearer than the line p0 + s u passes to the camera centre: no member
     line_distance = np.linalg.norm(members[0] - (members[0] @ u) * u)
     assert family_offsets(R, t0, u, points, np.array([0.5 * line_distance])).size == 0
+
+
+def test_the_linear_rows_of_all_motions_match_the_papers_per_motion_blocks():
+    """H's collinearity rows [A^c]x (a_b^T kron I) and coplanarity row (d_b kron rho) / depth, K's rho / depth."""
+    rng = np.random.default_rng(5)
+    units = [v / np.linalg.norm(v) for v in rng.normal(size=(15, 3))]
+    cors = [AxisCorrespondence(units[i], rng.normal(size=3), units[i + 5], units[i + 10]) for i in range(5)]
+    depths = rng.uniform(0.5, 2.0, 5)
+    H, K = _rows(cors, depths)
+    assert H.shape == (20, 9) and K.shape == (20, 3)
+    for i, (c, d) in enumerate(zip(cors, depths, strict=True)):
+        np.testing.assert_allclose(H[4 * i:4 * i + 3], skew(c.axis_cam) @ np.kron(c.axis_base[None, :], np.eye(3)),
+                                   rtol=0, atol=1e-15)
+        np.testing.assert_allclose(H[4 * i + 3], np.kron(c.point_base, c.plane_normal) / d, rtol=0, atol=1e-15)
+        np.testing.assert_array_equal(K[4 * i:4 * i + 3], 0.0)
+        np.testing.assert_allclose(K[4 * i + 3], c.plane_normal / d, rtol=0, atol=1e-15)

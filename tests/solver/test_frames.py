@@ -179,3 +179,12 @@ def test_quaternion_xyzw_component_order():
     R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     s = np.sqrt(0.5)
     np.testing.assert_allclose(quaternion_xyzw_from_matrix(R), [0.0, 0.0, s, s], atol=EXACT_TOL)
+
+
+def test_pose_difference_of_a_stack_is_each_poses(rng):
+    """A stack in either argument gives, row by row, the differences of the single poses."""
+    T = random_pose(rng)
+    stack = np.array([random_pose(rng) for _ in range(5)])
+    np.testing.assert_allclose(pose_difference(stack, T), [pose_difference(S, T) for S in stack], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(pose_difference(T, stack), [pose_difference(T, S) for S in stack], rtol=0, atol=1e-15)
+    assert pose_difference(stack, T).shape == (5, 6) and pose_difference(T, T).shape == (6,)

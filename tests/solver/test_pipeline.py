@@ -18,6 +18,7 @@ from solver import (
     DegenerateMotionError,
     InvalidInputError,
     KeypointTrack,
+    MotionConfig,
     MotionObservation,
     SyntheticConfig,
     SyntheticScene,
@@ -29,7 +30,7 @@ from solver import (
     sample_camera_pose,
 )
 from solver.calibration import AxisCorrespondence, family_offsets, pose_family
-from solver.pipeline import FOCAL_SCALE_TOLERANCE
+from solver.pipeline import CONICS_NOT_RUN, FOCAL_SCALE_TOLERANCE
 from solver.rigid_axis import RigidAxisConfig
 
 #: Noise-free recovery at the end of an episode (the issue's bound).
@@ -119,6 +120,42 @@ def test_the_refined_pose_predicts_the_rigid_front_ends_start():
     assert sum(predicted) >= 3, [(r.front_end, r.rigid_predicted) for r in runs[True].reports]
     assert not any(r.rigid_predicted for r in runs[False].reports)
     assert [r.front_end for r in runs[True].reports] == [r.front_end for r in runs[False].reports]
+    # the conics run only where the rigid fit needs them (no taken prediction), and give what they give alone
+    assert [r.conics == CONICS_NOT_RUN for r in runs[True].reports] == [
+        r.rigid_predicted and r.front_end == "rigid" for r in runs[True].reports]
+    assert not any(r.conics == CONICS_NOT_RUN for r in runs[False].reports)
+    for k, (obs, r) in enumerate(zip(observations, runs[True].reports, strict=True)):
+        if r.conics != CONICS_NOT_RUN:
+            try:
+                estimate_motion_geometry(obs, K, MotionConfig(), np.random.default_rng([0, k]))
+                alone = ""
+            except DegenerateMotionError as exc:
+                alone = str(exc)
+            assert r.conics == alone == runs[False].reports[k].conics
+
+
+def test_conics_always_reports_the_paper_front_end_on_every_motion_and_changes_nothing_else():
+    rng = np.random.default_rng(4)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.3, outlier_fraction=0.1, tracks_per_motion=25),
+                           rng)
+    observations = [scene.random_motion(rng).observation for _ in range(8)]
+    runs = {}
+    for always in (False, True):
+        runs[always] = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(conics_always=always))
+        for obs in observations:
+            runs[always].add_motion(obs)
+    lazy, full = runs[False], runs[True]
+    assert any(r.conics == CONICS_NOT_RUN for r in lazy.reports)
+    np.testing.assert_array_equal(full.state.T_camera_base, lazy.state.T_camera_base)
+    assert [r.front_end for r in full.reports] == [r.front_end for r in lazy.reports]
+    for k, (obs, r) in enumerate(zip(observations, full.reports, strict=True)):
+        try:
+            estimate_motion_geometry(obs, K, MotionConfig(), np.random.default_rng([0, k]))
+            alone = ""
+        except DegenerateMotionError as exc:
+            alone = str(exc)
+        assert r.conics == alone
 
 
 def test_same_input_gives_identical_estimates():

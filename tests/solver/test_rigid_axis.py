@@ -365,6 +365,43 @@ def test_a_wrong_predicted_start_falls_back_to_the_search(monkeypatch, wrong_by)
     np.testing.assert_array_equal(fit.track_inliers, plain.track_inliers)
 
 
+def test_starts_given_as_a_function_are_asked_for_only_when_tried():
+    """A right prediction is taken without calling it; a wrong one calls it once, and its starts fit as a list's."""
+    obs, axis = _far_scene(0)
+    searched = rigid_axis_of_motion(obs, CAMERA)
+    asked = []
+
+    def starts():
+        asked.append(1)
+        return [(searched.axis_cam, searched.point_cam)]
+
+    right = (_tilted(axis, np.radians(1.5)), searched.point_cam * 2.1)
+    assert rigid_axis_of_motion(obs, CAMERA, starts=starts, predicted=right).from_prediction and not asked
+    wrong = (_tilted(axis, np.radians(60.0)), np.array([0.1, 0.0, 2.0]))
+    lazy = rigid_axis_of_motion(obs, CAMERA, starts=starts, predicted=wrong)
+    eager = rigid_axis_of_motion(obs, CAMERA, starts=[(searched.axis_cam, searched.point_cam)], predicted=wrong)
+    assert len(asked) == 1 and not lazy.from_prediction
+    np.testing.assert_array_equal(lazy.axis_cam, eager.axis_cam)
+    np.testing.assert_array_equal(lazy.track_inliers, eager.track_inliers)
+
+
+def test_the_relative_poses_are_tried_only_when_no_earlier_fit_is_usable(monkeypatch):
+    """With ``relative_pose_if_needed``, the grid's fit keeps the rigid half of the tracks: no essential matrix is
+    computed (by default they are, and the same fit wins); when no fit can keep enough tracks
+    (min_inlier_fraction 0.9), they are tried."""
+    obs, axis = _far_scene(0)
+    calls = _count_searches(monkeypatch)
+    if_needed = RigidAxisConfig(relative_pose_if_needed=True)
+    fit = rigid_axis_of_motion(obs, CAMERA, if_needed)
+    assert calls == {"grid": 1, "relative": 0}
+    always = rigid_axis_of_motion(obs, CAMERA)
+    assert calls == {"grid": 2, "relative": 1}
+    assert _angle(fit.axis_cam, axis) < np.radians(1.0) and _angle(always.axis_cam, fit.axis_cam) < 1e-6
+    with pytest.raises(DegenerateMotionError, match="move rigidly together"):
+        rigid_axis_of_motion(obs, CAMERA, RigidAxisConfig(relative_pose_if_needed=True, min_inlier_fraction=0.9))
+    assert calls == {"grid": 3, "relative": 2}
+
+
 def test_the_predicted_angle_is_checked():
     with pytest.raises(InvalidInputError, match="predicted_angle"):
         RigidAxisConfig(predicted_angle=0.0)
