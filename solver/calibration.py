@@ -66,9 +66,7 @@ def _rows(correspondences: Sequence[AxisCorrespondence], depths: FloatArray) -> 
     axis_base = np.array([c.axis_base for c in correspondences])
     point_base = np.array([c.point_base for c in correspondences])
     normal = np.array([c.plane_normal for c in correspondences])
-    skews = np.zeros((n, 3, 3))
-    skews[:, 0, 1], skews[:, 0, 2], skews[:, 1, 2] = -axis_cam[:, 2], axis_cam[:, 1], -axis_cam[:, 0]
-    skews[:, 1, 0], skews[:, 2, 0], skews[:, 2, 1] = axis_cam[:, 2], -axis_cam[:, 1], axis_cam[:, 0]
+    skews = skew(axis_cam)  # (N, 3, 3)
     H = np.zeros((n, 4, 9))
     K = np.zeros((n, 4, 3))
     H[:, :3] = (skews[:, :, None, :] * axis_base[:, None, :, None]).reshape(n, 3, 9)

@@ -34,6 +34,7 @@ from scipy.spatial.transform import Rotation
 from solver.arrays import FloatArray, evenly_spaced
 from solver.camera import normalized_from_pixels
 from solver.errors import DegenerateMotionError, InvalidInputError
+from solver.frames import skew
 from solver.motion import MotionGeometry
 from solver.observations import CameraIntrinsics, MotionObservation
 
@@ -243,15 +244,15 @@ def _grid_costs(x: FloatArray, y: FloatArray, theta: FloatArray, directions: Flo
     iu, ju = np.triu_indices(3)
     for lo in range(0, directions.shape[0], _GRID_CHUNK):
         a = directions[lo:lo + _GRID_CHUNK]  # (A, 3)
-        R = c * np.eye(3) + s * _skew(a)[:, None] + (1.0 - c) * np.einsum("ai,aj->aij", a, a)[:, None]  # (A, L, 3, 3)
+        R = c * np.eye(3) + s * skew(a)[:, None] + (1.0 - c) * np.einsum("ai,aj->aij", a, a)[:, None]  # (A, L, 3, 3)
         M = np.eye(3) - R
         Rx = np.einsum("alij,lj->ali", R, x)
         v = np.cross(Rx, y)  # the constraint t . v = 0 of each track, t = (I - R) p
         g = np.einsum("alji,alj->ali", M, v)  # (I - R)^T v: p . g = 0
         p = np.cross(a[:, None, :], g)  # (A, L, 3) each track's proposal, perpendicular to a and g
         p /= np.maximum(np.linalg.norm(p, axis=2, keepdims=True), 1e-300)
-        EF = np.concatenate([_skew(Rx)[..., :2, :] @ M,  # E (A, L, 2, 3) over F
-                             np.swapaxes(R[..., :2], -1, -2) @ (_skew(y) @ M)], axis=-2)
+        EF = np.concatenate([skew(Rx)[..., :2, :] @ M,  # E (A, L, 2, 3) over F
+                             np.swapaxes(R[..., :2], -1, -2) @ (skew(y) @ M)], axis=-2)
         # p^T G p as 6 products: G's diagonal once, its off-diagonal pairs twice
         G6 = np.einsum("...ki,...ki->...i", EF[..., iu], EF[..., ju]) * np.where(iu == ju, 1.0, 2.0)
         pp = p[..., iu] * p[..., ju]  # (A, L proposals, 6)
@@ -340,21 +341,13 @@ _EYE3 = np.eye(3)
 _EYE3.flags.writeable = False
 
 
-def _skew(v: FloatArray) -> FloatArray:
-    """Cross-product matrices (..., 3, 3) of vectors v (..., 3): skew(v) @ w = v x w."""
-    S = np.zeros(v.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return S
-
-
 def _rotations_of(turns: FloatArray, a: FloatArray) -> FloatArray:
     """Rotations (N, 3, 3) about the unit axis a (3,) from (cos, sin, 1) of their angles, turns (N, 3).
 
     Rodrigues as one product: R = cos (I - a a^T) + sin [a]x + a a^T.
     """
     aa = np.outer(a, a)
-    return (turns @ np.array([(np.eye(3) - aa).ravel(), _skew(a).ravel(), aa.ravel()])).reshape(-1, 3, 3)
+    return (turns @ np.array([(np.eye(3) - aa).ravel(), skew(a).ravel(), aa.ravel()])).reshape(-1, 3, 3)
 
 
 def _triangulate(tracks: _Tracks, Rs: FloatArray, p: FloatArray) -> FloatArray:
@@ -363,9 +356,9 @@ def _triangulate(tracks: _Tracks, Rs: FloatArray, p: FloatArray) -> FloatArray:
     Each frame's ray x gives x cross (R X0 + (I - R) p) = 0, linear in X0; the normal equations of
     each track are solved on their own.
     """
-    skew = _skew(np.column_stack([tracks.uv, np.ones(len(tracks.uv))]))
-    A = skew @ Rs  # (N, 3, 3)
-    b = -np.einsum("nij,nj->ni", skew, p - np.einsum("nij,j->ni", Rs, p))
+    cross = skew(np.column_stack([tracks.uv, np.ones(len(tracks.uv))]))
+    A = cross @ Rs  # (N, 3, 3)
+    b = -np.einsum("nij,nj->ni", cross, p - np.einsum("nij,j->ni", Rs, p))
     AtA = tracks.per_track(np.einsum("nki,nkj->nij", A, A))
     Atb = tracks.per_track(np.einsum("nki,nk->ni", A, b))
     return np.linalg.solve(AtA + 1e-12 * np.eye(3), Atb[..., None])[..., 0]
@@ -416,7 +409,7 @@ def _jacobians(projection: _Projection, focal: float) -> tuple[FloatArray, Float
     P[:, 0, 0] = P[:, 1, 1] = focal / z
     P[:, :, 2] = -focal * X[:, :2] / z[:, None] ** 2
     J_point = P @ Rs
-    J_frame = J_point @ _skew(Xt) - P @ _skew(X)
+    J_frame = J_point @ skew(Xt) - P @ skew(X)
     return J_frame, J_point
 
 
@@ -460,7 +453,7 @@ def _turn(w: FloatArray, a: FloatArray, p: FloatArray) -> tuple[FloatArray, Floa
     if angle > 0:
         k = w / angle
         c, s = np.cos(angle), np.sin(angle)
-        K = _EYE3 * c + _skew(k) * s + np.outer(k, k) * (1.0 - c)  # Rodrigues
+        K = _EYE3 * c + skew(k) * s + np.outer(k, k) * (1.0 - c)  # Rodrigues
         a, p = K @ a, K @ p
     a = a / np.linalg.norm(a)
     p = p - a * (a @ p)
