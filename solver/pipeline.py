@@ -442,15 +442,15 @@ class Calibrator:
             if self.config.rigid_axis is not None and self.config.rigid_always:
                 moving, geometry = self._rigid_front_end(obs, moving, conics, report, axis, point)
                 if not found and self.config.conics_always:  # for the report only: the rigid axis stays
-                    front_end = report.front_end
                     conics()
-                    report.front_end = front_end
                 elif not found:
                     report.conics = CONICS_NOT_RUN
             else:
                 geometry = conics()
                 if self.config.rigid_axis is not None and geometry is None:
                     moving, geometry = self._rigid_front_end(obs, moving, conics, report, axis, point)
+            if geometry is not None and report.front_end != "rigid":
+                report.front_end = "conics"
             if geometry is None:
                 report.stage_one = "; ".join(r for r in (report.conics, report.rigid) if r)
             cap_tracks, cap_frames = self.config.max_tracks_per_motion, self.config.max_frames_per_track
@@ -826,6 +826,8 @@ class Calibrator:
     def _conic_front_end(self, obs: MotionObservation, report: MotionReport) -> MotionGeometry | None:
         """Stage one's conics (``estimate_motion_geometry``): the motion's geometry, or None and ``report.conics`` why.
 
+        Whether its geometry becomes the motion's (``report.front_end``) is ``add_motion``'s to say.
+
         Its random choices come from a generator of the seed and the motion's index alone, so whether the conics
         ran on the motions before (``CONICS_NOT_RUN``) does not change them.
         """
@@ -835,7 +837,6 @@ class Calibrator:
         except DegenerateMotionError as exc:
             report.conics = str(exc)
             return None
-        report.front_end = "conics"
         return geometry
 
     def _rigid_front_end(self, obs: MotionObservation, moving: list[KeypointTrack],
