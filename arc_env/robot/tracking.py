@@ -42,6 +42,7 @@ which is usually a fraction of the frame.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
@@ -508,9 +509,17 @@ def _root_weights(config: TrackerConfig) -> NDArray[np.float32] | None:
     """(P,) float32: square roots of the patch pixels' Gaussian weights (mean 1), or None for a uniform window."""
     if config.window_sigma_px <= 0:
         return None
-    offsets = _patch_offsets(config.win_size_px)
-    weights = np.exp(-0.5 * np.sum(offsets * offsets, axis=1) / config.window_sigma_px**2)
-    return np.sqrt(weights / weights.mean()).astype(np.float32)
+    return _gaussian_root_weights(config.win_size_px, config.window_sigma_px)
+
+
+@functools.lru_cache(maxsize=8)
+def _gaussian_root_weights(win_size_px: int, sigma_px: float) -> NDArray[np.float32]:
+    """``_root_weights`` of a Gaussian window, computed once per (window, sigma) (read-only: it is shared)."""
+    offsets = _patch_offsets(win_size_px)
+    weights = np.exp(-0.5 * np.sum(offsets * offsets, axis=1) / sigma_px**2)
+    root = np.sqrt(weights / weights.mean()).astype(np.float32)
+    root.flags.writeable = False
+    return root
 
 
 def _centred(values: NDArray[np.float32], root: NDArray[np.float32] | None) -> NDArray[np.float32]:
