@@ -376,6 +376,21 @@ def test_static_sweep_with_sensor_noise_gives_no_tracks(rng):
     assert_counts_add_up(noisy)
 
 
+
+@pytest.mark.parametrize("config", [SMALL, replace(SMALL, quadratic_warp=True), replace(SMALL, affine_iterations=0)],
+                         ids=["default", "quadratic", "plain-lk"])
+def test_a_blank_first_frame_leaves_the_tracks_to_re_detection(rng, config):
+    """A first frame with no corners on the moving plate (a camera still settling its exposure): no track
+    starts there, re-detection starts them later (this crashed once: the empty first set could not take them)."""
+    sweep = in_plane_sweep(rng)
+    frames = [np.full(SIZE, 128, np.uint8)] + list(sweep.frames[1:])
+    result = track_keypoints(frames, sweep.delta, config)
+    assert_counts_add_up(result)
+    assert len(result.tracks) >= 20
+    assert min(t.delta[0] for t in result.tracks) == sweep.delta[config.redetect_every]
+    if config.affine_iterations:
+        assert np.median(max_errors(result, sweep)) < MEDIAN_TOL_PX
+
 # --- moving mask ----------------------------------------------------------------------------------
 
 
