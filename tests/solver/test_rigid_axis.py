@@ -384,6 +384,22 @@ def test_the_grid_costs_match_essential_matrices_built_track_by_track():
     assert np.argmin(costs) == 0 and costs[0] < 0.7 * np.min(costs[1:])
 
 
+def test_the_grid_costs_do_not_depend_on_the_batching(monkeypatch):
+    """Every trial axis's cost and proposal are the same whether the axes go in one batch or in batches of 7."""
+    obs, _ = _far_scene(1)
+    uv = [normalized_from_pixels(t.pixels, CAMERA) for t in obs.tracks]
+    x = np.array([np.append(u[0], 1.0) for u in uv])
+    y = np.array([np.append(u[-1], 1.0) for u in uv])
+    theta = np.array([t.delta[-1] - t.delta[0] for t in obs.tracks])
+    directions = sphere_directions(50)
+    monkeypatch.setattr(rigid_axis_module, "_GRID_CHUNK", 50)
+    whole = _grid_costs(x, y, theta, directions, 1380.0, RigidAxisConfig())
+    monkeypatch.setattr(rigid_axis_module, "_GRID_CHUNK", 7)
+    batched = _grid_costs(x, y, theta, directions, 1380.0, RigidAxisConfig())
+    for a, b in zip(whole, batched, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_a_far_camera_with_sliding_tracks_still_gives_the_axis():
     """Seed 1: no frame pair's essential matrix finds the rigid motion; the grid search's start does."""
     obs, axis = _far_scene(1)
