@@ -430,13 +430,12 @@ def _normal_blocks(tracks: _Tracks, w: FloatArray, wr: FloatArray, J_frame: Floa
     Returns H_gg (3, 3), H_gp (T, 3, 3), H_pp (T, 3, 3), g_g (3,), g_p (T, 3): g for the frame's
     rotation, p for each track's point.
     """
-    WJg, WJp = w[..., None] * J_frame, w[..., None] * J_point
-    H_gg = WJg.reshape(-1, 3).T @ J_frame.reshape(-1, 3)
-    H_gp = tracks.per_track(np.swapaxes(WJg, 1, 2) @ J_point)
-    H_pp = tracks.per_track(np.swapaxes(WJp, 1, 2) @ J_point)
+    WJ = w[..., None] * np.concatenate([J_frame, J_point], axis=2)  # (N, 2, 6)
+    H_gg = WJ[..., :3].reshape(-1, 3).T @ J_frame.reshape(-1, 3)
+    H_xp = tracks.per_track(np.swapaxes(WJ, 1, 2) @ J_point)  # (T, 6, 3): H_gp over H_pp, one product and sum
     g_g = J_frame.reshape(-1, 3).T @ wr.ravel()
     g_p = tracks.per_track((np.swapaxes(J_point, 1, 2) @ wr[..., None])[..., 0])
-    return H_gg, H_gp, H_pp, g_g, g_p
+    return H_gg, H_xp[:, :3], H_xp[:, 3:], g_g, g_p
 
 
 def _hessian_weights(z: FloatArray) -> FloatArray:
