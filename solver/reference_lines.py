@@ -191,8 +191,9 @@ def candidate_scores(rays: FloatArray, delta: FloatArray, track_ids: IntArray, n
     return scores
 
 
-#: Candidates per block of ``candidate_scores`` (memory: about 100 * chunk * P bytes).
-_SCORE_CHUNK = 128
+#: Candidates per block of ``candidate_scores`` (memory: about 100 * chunk * P bytes). At 64 the scores of 40
+#: captured realistic motions' candidates took 13 % less CPU than at 128 (32: the same), each candidate's the same.
+_SCORE_CHUNK = 64
 
 
 def centres_3d(centres: FloatArray, axis: FloatArray) -> FloatArray:

@@ -23,6 +23,7 @@ reported in pixels through the mean focal length.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -253,13 +254,16 @@ def _grid_costs(x: FloatArray, y: FloatArray, theta: FloatArray, directions: Flo
         p /= np.maximum(np.linalg.norm(p, axis=2, keepdims=True), 1e-300)
         EF = np.concatenate([skew(Rx)[..., :2, :] @ M,  # E (A, L, 2, 3) over F
                              np.swapaxes(R[..., :2], -1, -2) @ (skew(y) @ M)], axis=-2)
-        # p^T G p as 6 products: G's diagonal once, its off-diagonal pairs twice
-        G6 = np.einsum("...ki,...ki->...i", EF[..., iu], EF[..., ju]) * np.where(iu == ju, 1.0, 2.0)
+        # p^T G p as 6 products: G's diagonal once, its off-diagonal pairs twice (one column pair per product:
+        # a third of the CPU of gathering the pairs' columns first)
+        G6 = np.stack([np.einsum("...k,...k->...", EF[..., i], EF[..., j]) * (1.0 if i == j else 2.0)
+                       for i, j in zip(iu, ju, strict=True)], axis=-1)
         pp = p[..., iu] * p[..., ju]  # (A, L proposals, 6)
         num = p @ np.swapaxes(g, 1, 2)  # (A, L proposals, L tracks)
         den = pp @ np.swapaxes(G6, 1, 2)
-        sampson = num ** 2 / np.maximum(den, 1e-300)
-        cost = np.sum(np.minimum(sampson, threshold), axis=2)  # (A, L proposals)
+        sampson = np.square(num, out=num)  # (in place: the chunk's largest arrays)
+        sampson /= np.maximum(den, 1e-300, out=den)
+        cost = np.sum(np.minimum(sampson, threshold, out=sampson), axis=2)  # (A, L proposals)
         best = np.argmin(cost, axis=1)
         pick = np.arange(a.shape[0])
         costs[lo:lo + _GRID_CHUNK] = cost[pick, best]
@@ -267,8 +271,10 @@ def _grid_costs(x: FloatArray, y: FloatArray, theta: FloatArray, directions: Flo
     return costs, points
 
 
-#: Trial axes per batch of ``_grid_costs`` (memory: about 100 * chunk * L^2 bytes).
-_GRID_CHUNK = 256
+#: Trial axes per batch of ``_grid_costs`` (memory: about 100 * chunk * L^2 bytes). At 128 (40 tracks: 1.6 MB
+#: per (A, L, L) array, within a 4 MB L2 cache) the search took 17 % less CPU than at 256 on 30 captured
+#: realistic motions (64: the same, 32: 10 % less); every trial axis's arithmetic is the same at any chunk.
+_GRID_CHUNK = 128
 
 
 def _grid_starts(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
@@ -344,10 +350,15 @@ _EYE3.flags.writeable = False
 def _rotations_of(turns: FloatArray, a: FloatArray) -> FloatArray:
     """Rotations (N, 3, 3) about the unit axis a (3,) from (cos, sin, 1) of their angles, turns (N, 3).
 
-    Rodrigues as one product: R = cos (I - a a^T) + sin [a]x + a a^T.
+    Rodrigues as one product: R = cos (I - a a^T) + sin [a]x + a a^T (its three (3, 3) terms written
+    out on Python floats: one call per trial step).
     """
-    aa = np.outer(a, a)
-    return (turns @ np.array([(np.eye(3) - aa).ravel(), skew(a).ravel(), aa.ravel()])).reshape(-1, 3, 3)
+    x, y, z = a.tolist()
+    xx, xy, xz, yy, yz, zz = x * x, x * y, x * z, y * y, y * z, z * z
+    terms = np.array([[1.0 - xx, -xy, -xz, -xy, 1.0 - yy, -yz, -xz, -yz, 1.0 - zz],
+                      [0.0, -z, y, z, 0.0, -x, -y, x, 0.0],
+                      [xx, xy, xz, xy, yy, yz, xz, yz, zz]])
+    return (turns @ terms).reshape(-1, 3, 3)
 
 
 def _triangulate(tracks: _Tracks, Rs: FloatArray, p: FloatArray) -> FloatArray:
@@ -419,13 +430,12 @@ def _normal_blocks(tracks: _Tracks, w: FloatArray, wr: FloatArray, J_frame: Floa
     Returns H_gg (3, 3), H_gp (T, 3, 3), H_pp (T, 3, 3), g_g (3,), g_p (T, 3): g for the frame's
     rotation, p for each track's point.
     """
-    WJg, WJp = w[..., None] * J_frame, w[..., None] * J_point
-    H_gg = WJg.reshape(-1, 3).T @ J_frame.reshape(-1, 3)
-    H_gp = tracks.per_track(np.swapaxes(WJg, 1, 2) @ J_point)
-    H_pp = tracks.per_track(np.swapaxes(WJp, 1, 2) @ J_point)
+    WJ = w[..., None] * np.concatenate([J_frame, J_point], axis=2)  # (N, 2, 6)
+    H_gg = WJ[..., :3].reshape(-1, 3).T @ J_frame.reshape(-1, 3)
+    H_xp = tracks.per_track(np.swapaxes(WJ, 1, 2) @ J_point)  # (T, 6, 3): H_gp over H_pp, one product and sum
     g_g = J_frame.reshape(-1, 3).T @ wr.ravel()
     g_p = tracks.per_track((np.swapaxes(J_point, 1, 2) @ wr[..., None])[..., 0])
-    return H_gg, H_gp, H_pp, g_g, g_p
+    return H_gg, H_xp[:, :3], H_xp[:, 3:], g_g, g_p
 
 
 def _hessian_weights(z: FloatArray) -> FloatArray:
@@ -448,16 +458,38 @@ def _damping_scale(H: FloatArray) -> FloatArray:
 
 
 def _turn(w: FloatArray, a: FloatArray, p: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """The line's frame (a, p) turned by the small rotation vector w (3,), kept orthonormal."""
-    angle = float(np.sqrt(w @ w))
-    if angle > 0:
-        k = w / angle
-        c, s = np.cos(angle), np.sin(angle)
-        K = _EYE3 * c + skew(k) * s + np.outer(k, k) * (1.0 - c)  # Rodrigues
-        a, p = K @ a, K @ p
-    a = a / np.linalg.norm(a)
-    p = p - a * (a @ p)
-    return a, p / np.linalg.norm(p)
+    """The line's frame (a, p) turned by the small rotation vector w (3,), kept orthonormal.
+
+    On Python floats: three-vectors, one at every trial step of ``_refine``, cost less so than as arrays.
+    """
+    wx, wy, wz = w.tolist()
+    (ax, ay, az), (px, py, pz) = a.tolist(), p.tolist()
+    angle = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if angle > 0:  # Rodrigues: x c + (k x x) s + k (k . x)(1 - c)
+        kx, ky, kz = wx / angle, wy / angle, wz / angle
+        c, s = math.cos(angle), math.sin(angle)
+        ka, kp = (kx * ax + ky * ay + kz * az) * (1.0 - c), (kx * px + ky * py + kz * pz) * (1.0 - c)
+        ax, ay, az = (ax * c + (ky * az - kz * ay) * s + kx * ka, ay * c + (kz * ax - kx * az) * s + ky * ka,
+                      az * c + (kx * ay - ky * ax) * s + kz * ka)
+        px, py, pz = (px * c + (ky * pz - kz * py) * s + kx * kp, py * c + (kz * px - kx * pz) * s + ky * kp,
+                      pz * c + (kx * py - ky * px) * s + kz * kp)
+    n = math.sqrt(ax * ax + ay * ay + az * az)
+    ax, ay, az = ax / n, ay / n, az / n
+    ap = ax * px + ay * py + az * pz
+    px, py, pz = px - ax * ap, py - ay * ap, pz - az * ap
+    n = math.sqrt(px * px + py * py + pz * pz)
+    return np.array([ax, ay, az]), np.array([px / n, py / n, pz / n])
+
+
+def _inverse_3x3(S: FloatArray) -> FloatArray:
+    """The inverse (3, 3) of a 3 x 3 matrix S by its adjugate, on Python floats (no LAPACK call's overhead)."""
+    (a, b, c), (d, e, f), (g, h, i) = S.tolist()
+    A, B, C = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * A + b * B + c * C
+    if det == 0.0 or not math.isfinite(det):
+        return np.linalg.inv(S)  # LAPACK's verdict (raises when singular)
+    return np.array([[A, c * h - b * i, b * f - c * e], [B, a * i - c * g, c * d - a * f],
+                     [C, b * g - a * h, a * e - b * d]]) / det
 
 
 class _ArrowSystem:
@@ -478,7 +510,11 @@ class _ArrowSystem:
         self.W = np.swapaxes(H_gp @ self.Q, 1, 2).reshape(-1, 3)  # (3T, 3): H_gp's columns in the eigenbases
         # Full rank as scipy's least_squares judges it: the least singular value of the Jacobian above
         # eps * (number of residuals) times the largest.
-        S0 = H_gg - self.W.T @ (self.W / np.maximum(self.lam, 1e-300)[:, None])
+        inv0 = 1.0 / np.maximum(self.lam, 1e-300)
+        Wi0 = self.W * inv0[:, None]
+        S0 = H_gg - self.W.T @ Wi0
+        # alpha = 0's factors when no eigenvalue is 0 (the Gauss-Newton step; ``factor`` would repeat them)
+        self._factor0 = (inv0, Wi0, S0) if lam.min(initial=np.inf) > 0 else None
         eig_s = np.linalg.eigvalsh(S0) if np.all(np.isfinite(S0)) else np.array([-1.0])
         largest = max(float(lam.max(initial=0.0)), float(eig_s.max()))
         threshold = (np.finfo(float).eps * n_residuals) ** 2 * largest
@@ -494,9 +530,12 @@ class _ArrowSystem:
 
     def factor(self, alpha: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """For one alpha: 1 / (lam + alpha) (3T,), W scaled by it (3T, 3), the Schur complement's inverse (3, 3)."""
+        if alpha == 0.0 and self._factor0 is not None:
+            inv, Wi, S0 = self._factor0
+            return inv, Wi, _inverse_3x3(S0)
         inv = 1.0 / (self.lam + alpha)
         Wi = self.W * inv[:, None]
-        return inv, Wi, np.linalg.inv(self.H_gg + alpha * _EYE3 - self.W.T @ Wi)
+        return inv, Wi, _inverse_3x3(self.H_gg + alpha * _EYE3 - self.W.T @ Wi)
 
     @staticmethod
     def solve(factors: tuple[FloatArray, FloatArray, FloatArray], b_g: FloatArray, b_y: FloatArray
@@ -507,50 +546,72 @@ class _ArrowSystem:
         return x_g, inv * b_y - Wi @ x_g
 
 
-def _trust_region_step(system: _ArrowSystem, g_g: FloatArray, g_p: FloatArray, radius: float,
-                       alpha: float) -> tuple[FloatArray, FloatArray, float]:
-    """The step (3,), (T, 3) of length ``radius`` (or shorter: Gauss-Newton) minimizing the model.
+class _TrustRegionModel:
+    """The quadratic model 0.5 x^T H x + g^T x of one linearization, and its trust-region steps.
 
-    The model is 0.5 x^T H x + g^T x in scaled variables; the Levenberg-Marquardt parameter alpha is
-    found by Newton's method on the step's length (More's, as scipy's ``solve_lsq_trust_region``
-    does with an SVD of the Jacobian; here through the arrow system, in its eigenbases). Returns the
-    step and alpha.
+    The steps of every radius tried at one linearization share the Gauss-Newton step (alpha = 0), which
+    does not depend on the radius: it is solved once (a rejected step's retry then costs its alpha search).
     """
-    g_y = system.to_eigen(g_p)
 
-    def step_and_phi(a: float) -> tuple[FloatArray, FloatArray, float, float]:
+    def __init__(self, system: _ArrowSystem, g_g: FloatArray, g_p: FloatArray):
+        self.system, self.g_g = system, g_g
+        self.g_y = system.to_eigen(g_p)
+        self._gauss_newton: tuple[FloatArray, FloatArray, float, float] | None = None
+
+    def _step_and_norm(self, a: float) -> tuple[FloatArray, FloatArray, float, float]:
+        """The step (3,), (3T,) (eigenbases) for alpha = a, its length, and the length's derivative by alpha."""
+        system = self.system
         factors = system.factor(a)
-        x_g, x_y = system.solve(factors, -g_g, -g_y)
+        x_g, x_y = system.solve(factors, -self.g_g, -self.g_y)
         norm = float(np.sqrt(x_g @ x_g + x_y @ x_y))
         q_g, q_y = system.solve(factors, x_g, x_y)
-        return x_g, x_y, norm - radius, -float(x_g @ q_g + x_y @ q_y) / norm
+        return x_g, x_y, norm, -float(x_g @ q_g + x_y @ q_y) / norm
 
-    full_rank = system.full_rank
-    if full_rank:
-        x_g, x_y, phi, phi_prime = step_and_phi(0.0)
-        # (the Schur complement of a nearly singular system can lose the step's accuracy: then as
-        # rank deficient)
-        full_rank = bool(np.isfinite(phi) and np.isfinite(phi_prime) and phi_prime < 0)
-        if full_rank and phi <= 0:
-            return x_g, system.from_eigen(x_y), 0.0
-    alpha_upper = float(np.sqrt(g_g @ g_g + g_y @ g_y)) / radius
-    alpha_lower = -phi / phi_prime if full_rank else 0.0
-    if not full_rank and alpha == 0:
-        alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
-    for _ in range(10):
-        if alpha < alpha_lower or alpha > alpha_upper:
+    def step(self, radius: float, alpha: float) -> tuple[FloatArray, FloatArray, float]:
+        """The step minimizing the model within ``radius``: (3,), (3T,) (the points' part in the eigenbases), alpha.
+
+        Of length ``radius``, or shorter (Gauss-Newton, alpha = 0); alpha is the Levenberg-Marquardt parameter.
+        The variables are scaled; alpha is found by Newton's method on the step's length (More's, as
+        scipy's ``solve_lsq_trust_region`` does with an SVD of the Jacobian; here through the arrow
+        system, in its eigenbases), starting from the given alpha.
+        """
+        system, g_g, g_y = self.system, self.g_g, self.g_y
+        full_rank = system.full_rank
+        if full_rank:
+            if self._gauss_newton is None:
+                self._gauss_newton = self._step_and_norm(0.0)
+            x_g, x_y, norm, phi_prime = self._gauss_newton
+            phi = norm - radius
+            # (the Schur complement of a nearly singular system can lose the step's accuracy: then as
+            # rank deficient)
+            full_rank = bool(np.isfinite(phi) and np.isfinite(phi_prime) and phi_prime < 0)
+            if full_rank and phi <= 0:
+                return x_g, x_y, 0.0
+        alpha_upper = float(np.sqrt(g_g @ g_g + g_y @ g_y)) / radius
+        alpha_lower = -phi / phi_prime if full_rank else 0.0
+        if not full_rank and alpha == 0:
             alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
-        _, _, phi, phi_prime = step_and_phi(alpha)
-        if phi < 0:
-            alpha_upper = alpha
-        ratio = phi / phi_prime
-        alpha_lower = max(alpha_lower, alpha - ratio)
-        alpha -= (phi + radius) * ratio / radius
-        if abs(phi) < 0.01 * radius:
-            break
-    x_g, x_y = system.solve(system.factor(alpha), -g_g, -g_y)
-    shrink = radius / float(np.sqrt(x_g @ x_g + x_y @ x_y))
-    return x_g * shrink, system.from_eigen(x_y) * shrink, alpha
+        for _ in range(10):
+            if alpha < alpha_lower or alpha > alpha_upper:
+                alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
+            _, _, norm, phi_prime = self._step_and_norm(alpha)
+            phi = norm - radius
+            if phi < 0:
+                alpha_upper = alpha
+            ratio = phi / phi_prime
+            alpha_lower = max(alpha_lower, alpha - ratio)
+            alpha -= (phi + radius) * ratio / radius
+            if abs(phi) < 0.01 * radius:
+                break
+        x_g, x_y = system.solve(system.factor(alpha), -g_g, -g_y)
+        shrink = radius / float(np.sqrt(x_g @ x_g + x_y @ x_y))
+        return x_g * shrink, x_y * shrink, alpha
+
+    def decrease(self, h_g: FloatArray, h_y: FloatArray) -> float:
+        """The decrease the model predicts for a step h_g (3,), h_y (3T,) (eigenbases): -(0.5 h^T H h + g^T h)."""
+        system = self.system
+        quadratic = h_g @ system.H_gg @ h_g + 2.0 * float(h_y @ (system.W @ h_g)) + float((system.lam * h_y) @ h_y)
+        return -(0.5 * quadratic + float(h_g @ self.g_g) + float(h_y @ self.g_y))
 
 
 def _refine(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal: float,
@@ -579,7 +640,7 @@ def _refine(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal
         J_frame, J_point = _jacobians(projection, focal)
         z = r ** 2 / s2
         blocks = _normal_blocks(tracks, _hessian_weights(z), r / (1.0 + z),
-                                J_frame @ np.column_stack([u, v, a]), J_point)
+                                (J_frame.reshape(-1, 3) @ np.column_stack([u, v, a])).reshape(-1, 2, 3), J_point)
         scale_inv = (np.sqrt(np.diag(blocks[0])), np.sqrt(np.diagonal(blocks[2], axis1=1, axis2=2)))
         return r, blocks, scale_inv
 
@@ -598,19 +659,20 @@ def _refine(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal
                             H_pp * d_p[:, :, None] * d_p[:, None, :])
         g_g, g_p = g_g * d_g, g_p * d_p
         system = _ArrowSystem(H_gg, H_gp, H_pp, r.size)
+        model = _TrustRegionModel(system, g_g, g_p)
+        frame = np.column_stack([u, v, a])  # the line's three unknowns' directions
         reduction = -1.0
         while reduction <= 0 and n_eval < max_evaluations:
-            h_g, h_p, alpha = _trust_region_step(system, g_g, g_p, radius, alpha)
-            Hh_g = H_gg @ h_g + np.swapaxes(H_gp, 0, 1).reshape(3, -1) @ h_p.ravel()
-            Hh_p = h_g @ H_gp + (H_pp @ h_p[..., None])[..., 0]
-            predicted = -(0.5 * (h_g @ Hh_g + np.sum(h_p * Hh_p)) + h_g @ g_g + np.sum(h_p * g_p))
+            h_g, h_y, alpha = model.step(radius, alpha)
+            predicted = model.decrease(h_g, h_y)
+            h_p = system.from_eigen(h_y)
             step_g, step_p = h_g * d_g, h_p * d_p
-            a_new, p_new = _turn(np.column_stack([u, v, a]) @ step_g, a, p)
+            a_new, p_new = _turn(frame @ step_g, a, p)
             X0_new = X0 + step_p
             trial = _project(tracks, tracks.rotations(a_new), p_new, X0_new, focal)
             r_new = trial.r
             n_eval += 1
-            h_norm = float(np.sqrt(h_g @ h_g + np.sum(h_p ** 2)))
+            h_norm = float(np.sqrt(h_g @ h_g + h_y @ h_y))  # (the eigenbases keep lengths)
             if not np.all(np.isfinite(r_new)):
                 radius = 0.25 * h_norm
                 continue

@@ -65,6 +65,17 @@ def test_skew_is_the_cross_product(rng):
                                atol=EXACT_TOL)
 
 
+def test_skew_writes_the_cross_product_matrix_out_for_any_stack(rng):
+    """Against the matrix written entry by entry: the same values exactly, stacks of any shape."""
+    v = rng.normal(size=(2, 5, 3))
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    zero = np.zeros_like(x)
+    written = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2)
+    np.testing.assert_array_equal(skew(v), written)
+    np.testing.assert_array_equal(skew(v[0, 0]), written[0, 0])
+    assert skew(v).shape == (2, 5, 3, 3)
+
+
 def test_transform_from_rt_maps_points(rng):
     R = Rotation.random(random_state=rng).as_matrix()
     t = rng.normal(size=3)

@@ -18,11 +18,14 @@ from solver.rigid_axis import (
     _ArrowSystem,
     _grid_costs,
     _grid_starts,
+    _inverse_3x3,
     _refine,
     _residuals,
+    _rotations_of,
     _track_rms,
     _Tracks,
     _triangulate,
+    _TrustRegionModel,
     _turn,
     geometry_from_rigid_fit,
     rigid_axis_of_motion,
@@ -227,6 +230,86 @@ def test_the_arrow_system_solves_the_assembled_normal_equations(alpha):
                                np.linalg.solve(H + alpha * np.eye(H.shape[0]), b), rtol=1e-9, atol=1e-12)
 
 
+#: Relative accuracy of the closed-form 3 x 3 inverse and of the trust region's steps against dense solves.
+DENSE_RTOL = 1e-9
+
+
+def _arrow_problem(seed: int, n_tracks: int = 5):
+    """A random arrow-shaped normal matrix H (3 + 3T square, each track's point touching its own rows only), a
+    gradient g, and the ``_ArrowSystem`` of H."""
+    rng = np.random.default_rng(seed)
+    J = rng.normal(size=(8 * n_tracks, 3 + 3 * n_tracks))
+    for t in range(n_tracks):
+        rows = np.ones(J.shape[0], dtype=bool)
+        rows[8 * t:8 * t + 8] = False
+        J[rows, 3 + 3 * t:6 + 3 * t] = 0.0
+    H = J.T @ J
+    system = _ArrowSystem(H[:3, :3], np.stack([H[:3, 3 + 3 * t:6 + 3 * t] for t in range(n_tracks)]),
+                          np.stack([H[3 + 3 * t:6 + 3 * t, 3 + 3 * t:6 + 3 * t] for t in range(n_tracks)]), J.shape[0])
+    return H, rng.normal(size=H.shape[0]), system
+
+
+def test_the_closed_form_inverse_matches_lapack():
+    rng = np.random.default_rng(15)
+    for scale in (1.0, 1e-6, 1e8):
+        S = rng.normal(size=(3, 3)) * scale
+        np.testing.assert_allclose(_inverse_3x3(S) @ S, np.eye(3), rtol=0, atol=DENSE_RTOL)
+    near = np.diag([1.0, 1.0, 1e-10]) + 1e-12 * rng.normal(size=(3, 3))  # ill-conditioned, not singular
+    np.testing.assert_allclose(_inverse_3x3(near), np.linalg.inv(near), rtol=1e-5)
+    with pytest.raises(np.linalg.LinAlgError):
+        _inverse_3x3(np.zeros((3, 3)))  # singular: LAPACK's verdict
+
+
+@pytest.mark.parametrize("radius", [1e-3, 0.3, 1e6])
+def test_the_trust_region_step_solves_the_damped_dense_system(radius):
+    """The step of each radius against dense solves: (H + alpha I) h = -g for the alpha it reports, of length
+    ``radius`` within More's 1 % when alpha > 0 (else the Gauss-Newton step, inside the radius); the model's
+    predicted decrease against -(0.5 h^T H h + g^T h) assembled densely."""
+    H, g, system = _arrow_problem(16)
+    model = _TrustRegionModel(system, g[:3], g[3:].reshape(-1, 3))
+    h_g, h_y, alpha = model.step(radius, 0.0)
+    h = np.concatenate([h_g, system.from_eigen(h_y).ravel()])
+    dense = np.linalg.solve(H + alpha * np.eye(H.shape[0]), -g)
+    if alpha > 0:
+        assert np.linalg.norm(h) == pytest.approx(radius, rel=1e-12)  # scaled to the radius exactly ...
+        assert np.linalg.norm(dense) == pytest.approx(radius, rel=0.01)  # ... from More's solution within 1 %
+        np.testing.assert_allclose(h, dense * radius / np.linalg.norm(dense), rtol=DENSE_RTOL, atol=1e-12)
+    else:
+        assert np.linalg.norm(dense) <= radius
+        np.testing.assert_allclose(h, dense, rtol=DENSE_RTOL, atol=1e-12)
+    assert model.decrease(h_g, h_y) == pytest.approx(-(0.5 * h @ H @ h + g @ h), rel=DENSE_RTOL)
+
+
+def test_a_retried_radius_gives_the_same_step_as_a_fresh_model():
+    """The Gauss-Newton step kept from the first radius does not leak into the next one's step."""
+    _, g, system = _arrow_problem(17)
+    model = _TrustRegionModel(system, g[:3], g[3:].reshape(-1, 3))
+    model.step(1e6, 0.0)  # the Gauss-Newton step, kept
+    retried = model.step(0.01, 0.0)
+    fresh = _TrustRegionModel(system, g[:3], g[3:].reshape(-1, 3)).step(0.01, 0.0)
+    for a, b in zip(retried, fresh, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_rotations_and_the_line_turn_match_scipy():
+    """Rodrigues written out (``_rotations_of``, ``_turn``) against scipy's rotation vectors."""
+    rng = np.random.default_rng(18)
+    a = rng.normal(size=3)
+    a /= np.linalg.norm(a)
+    delta = rng.uniform(-1.0, 1.0, 7)
+    turns = np.column_stack([np.cos(delta), np.sin(delta), np.ones_like(delta)])
+    np.testing.assert_allclose(_rotations_of(turns, a), Rotation.from_rotvec(delta[:, None] * a).as_matrix(),
+                               rtol=0, atol=1e-15 * 8)
+    p = np.cross(a, rng.normal(size=3))
+    p /= np.linalg.norm(p)
+    w = rng.normal(0.0, 0.2, 3)
+    a_turned, p_turned = _turn(w, a, p)
+    K = Rotation.from_rotvec(w)
+    np.testing.assert_allclose(a_turned, K.apply(a), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(p_turned, K.apply(p), rtol=0, atol=1e-14)
+    np.testing.assert_array_equal(_turn(np.zeros(3), a, p)[0], a / np.linalg.norm(a))
+
+
 def test_the_search_over_starts_is_checked():
     with pytest.raises(InvalidInputError, match="enough_inlier_fraction"):
         RigidAxisConfig(enough_inlier_fraction=0.0)
@@ -299,6 +382,22 @@ def test_the_grid_costs_match_essential_matrices_built_track_by_track():
         assert min(min(np.linalg.norm(point - p), np.linalg.norm(point + p)) for p in best) < 1e-9
     # not a comparison of truncation constants: the true axis explains the rigid half of the tracks
     assert np.argmin(costs) == 0 and costs[0] < 0.7 * np.min(costs[1:])
+
+
+def test_the_grid_costs_do_not_depend_on_the_batching(monkeypatch):
+    """Every trial axis's cost and proposal are the same whether the axes go in one batch or in batches of 7."""
+    obs, _ = _far_scene(1)
+    uv = [normalized_from_pixels(t.pixels, CAMERA) for t in obs.tracks]
+    x = np.array([np.append(u[0], 1.0) for u in uv])
+    y = np.array([np.append(u[-1], 1.0) for u in uv])
+    theta = np.array([t.delta[-1] - t.delta[0] for t in obs.tracks])
+    directions = sphere_directions(50)
+    monkeypatch.setattr(rigid_axis_module, "_GRID_CHUNK", 50)
+    whole = _grid_costs(x, y, theta, directions, 1380.0, RigidAxisConfig())
+    monkeypatch.setattr(rigid_axis_module, "_GRID_CHUNK", 7)
+    batched = _grid_costs(x, y, theta, directions, 1380.0, RigidAxisConfig())
+    for a, b in zip(whole, batched, strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_a_far_camera_with_sliding_tracks_still_gives_the_axis():
