@@ -446,8 +446,11 @@ class _LiveTracks:
         return _LiveTracks(**{f.name: getattr(self, f.name)[keep] for f in fields(self)})
 
     def extend(self, other: _LiveTracks) -> _LiveTracks:
+        # An empty set's patch arrays may have other widths (none detected in a sweep's first frame): nothing to keep.
         if len(other) == 0:
             return self
+        if len(self) == 0:
+            return other
         return _LiveTracks(**{f.name: np.concatenate([getattr(self, f.name), getattr(other, f.name)])
                               for f in fields(self)})
 
@@ -467,12 +470,10 @@ def _new_tracks(image: ImageArray, pts: NDArray[np.float32], first_id: int,
     ids = np.arange(first_id, first_id + n, dtype=np.int64)
     A = np.tile(np.eye(2), (n, 1, 1))
     Q = np.zeros((n, 2, 3))
-    w = config.win_size_px
     if config.affine_iterations == 0 or n == 0:
-        # Empty patches of the refinement's shapes, so tracks detected later (re-detection) can join these.
-        size, p = (0, 6) if config.affine_iterations == 0 else (w * w, 12 if config.quadratic_warp else 6)
-        return _LiveTracks(ids, pts, np.zeros((n, size), np.float32), np.ones(n, np.float32), np.ones(n, np.float32),
-                           np.zeros((n, p, size), np.float32), np.zeros((n, p, p)), A, Q, np.zeros(n))
+        return _LiveTracks(ids, pts, np.zeros((n, 0), np.float32), np.ones(n, np.float32), np.ones(n, np.float32),
+                           np.zeros((n, 6, 0), np.float32), np.zeros((n, 6, 6)), A, Q, np.zeros(n))
+    w = config.win_size_px
     # Sample a one-pixel larger square so central differences cover the whole patch.
     r = np.arange(-(w // 2) - 1, w // 2 + 2, dtype=np.float32)
     gx, gy = np.meshgrid(r, r)
