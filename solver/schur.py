@@ -114,8 +114,21 @@ def normal_blocks(blocks: FloatArray, r: FloatArray, w: FloatArray, starts: np.n
     return U, W, V, g[:, :n].sum(axis=0), gx
 
 
+def pose_step_sigmas(dp: FloatArray, S: FloatArray, r: FloatArray) -> float:
+    """How far a pose step dp (n,) goes in units of the pose's 1-sigma: sqrt(dp^T S dp) / sigma.
+
+    ``S`` (n, n) is the (weighted) Schur information in px^2 per unit of the parameters, so that the
+    pose's covariance is sigma^2 S^-1; sigma (px) is the residuals' ``r`` (P, 2) robust noise per
+    coordinate (1.4826 MAD). A step along a direction the data fix well counts for more than the same
+    step along a weak one, as the robust pass's outlier points creep on while the pose stands still.
+    """
+    sigma = 1.4826 * float(np.median(np.abs(r)))
+    quad = float(dp @ S @ dp)
+    return float(np.sqrt(max(quad, 0.0))) / sigma if sigma > 0 else float("inf")
+
+
 def solve_schur(problem: Any, x0: FloatArray, loss: Loss = "linear", f_scale: float = 1.0, max_iter: int = 50,
-                ftol: float = 1e-9, prior: PosePrior | None = None) -> SchurSolution:
+                ftol: float = 1e-9, prior: PosePrior | None = None, pose_tol: float | None = None) -> SchurSolution:
     """Minimize the problem's robust cost (plus the pose prior's) from x0 by Levenberg-Marquardt.
 
     Args:
@@ -126,6 +139,8 @@ def solve_schur(problem: Any, x0: FloatArray, loss: Loss = "linear", f_scale: fl
         max_iter: Jacobian evaluations at most.
         ftol: the relative cost decrease of an accepted step below which the iteration stops.
         prior: a quadratic cost on the pose parameters, or None.
+        pose_tol: also stop once an accepted step moves the pose by less than this fraction of its
+            1-sigma (``pose_step_sigmas``), whatever the points do; None: the cost criterion alone.
 
     Returns:
         The solution (``SchurSolution``).
@@ -179,10 +194,11 @@ def solve_schur(problem: Any, x0: FloatArray, loss: Loss = "linear", f_scale: fl
             fun_new, cost_new = evaluate(x_new)
             if np.isfinite(cost_new) and cost_new < cost:
                 decrease = (cost - cost_new) / max(cost, 1e-300)
+                converged = decrease < ftol or (pose_tol is not None
+                                                and pose_step_sigmas(dp, S, r) < pose_tol)
                 x, fun, cost = x_new, fun_new, cost_new
                 lam = max(lam / 10, 1e-12)
                 improved = True
-                converged = decrease < ftol
                 break
             lam *= 10
         if not improved or converged:

@@ -16,9 +16,10 @@ from solver.refinement import (
     build_track_set,
     refine,
     refine_increment,
+    start_points,
     summaries_covariance,
 )
-from solver.schur import PosePrior, normal_blocks, solve_schur, track_starts
+from solver.schur import PosePrior, normal_blocks, pose_step_sigmas, solve_schur, track_starts
 from tests.solver.scene import FOCAL
 from tests.solver.test_refinement import (
     NOISE_FREE_POSE_TOL,
@@ -106,6 +107,59 @@ def test_a_pose_prior_holds_the_pose_where_it_says():
     np.testing.assert_allclose(sol.x[:6], target, atol=1e-6)
     free = solve_schur(problem, x0)
     assert np.linalg.norm(free.x[:6] - target) > 0.9 * np.linalg.norm(target)  # without it, near the tracks' optimum
+
+
+def test_pose_step_sigmas_measures_a_step_against_the_pose_covariance():
+    # A linear problem with a known covariance sigma^2 (J^T J)^-1: the step k L e, L its Cholesky factor and e a
+    # unit vector, is k standard deviations long whatever the direction.
+    rng = np.random.default_rng(41)
+    J = rng.normal(size=(200, 6)) * np.array([1.0, 5.0, 0.2, 30.0, 1.0, 3.0])  # scales and correlations
+    S = J.T @ J
+    sigma = 0.7
+    r = np.full((100, 2), sigma / 1.4826) * rng.choice([-1.0, 1.0], (100, 2))  # 1.4826 MAD = sigma exactly
+    L = np.linalg.cholesky(sigma**2 * np.linalg.inv(S))
+    for k in (0.01, 0.3, 2.0):
+        e = rng.normal(size=6)
+        dp = k * L @ (e / np.linalg.norm(e))
+        assert pose_step_sigmas(dp, S, r) == pytest.approx(k, rel=1e-9)
+    assert pose_step_sigmas(np.zeros(6), S, r) == 0.0
+    assert pose_step_sigmas(np.ones(6), S, np.zeros((3, 2))) == np.inf  # no noise to measure it by
+
+
+def test_the_robust_pass_stops_once_the_pose_stands_still():
+    # Drifting tracks (a point sliding along an outline) keep their points creeping in the Cauchy pass long after
+    # the pose has settled; the pose criterion ends the pass there, within a fraction of a sigma of where the cost
+    # criterion alone would end it, and the tracks it keeps and the final estimate are the same.
+    scene = _make_scene(43, n_motions=6, n_tracks=10, n_frames=30, noise_px=0.5)
+    rng = np.random.default_rng(44)
+    motions = []
+    for axis, pivot, tracks in scene.motions:
+        drifted = [(uv + np.outer(np.linspace(0.0, 1.0, len(uv)), rng.normal(0.0, 15.0, 2)) / FOCAL, d)
+                   if j < 3 else (uv, d) for j, (uv, d) in enumerate(tracks)]
+        motions.append((axis, pivot, drifted))
+    tracks = build_track_set(motions, FOCAL)
+    start = _start_pose(scene.T_true, 45)
+    points, keep = start_points(tracks, start)
+    assert keep.all()
+    problem = _Problem(tracks, start)
+    x0 = np.concatenate([np.zeros(6), (points @ start[:3, :3].T + start[:3, 3]).ravel()])
+    full = solve_schur(problem, x0, "cauchy", 1.0, 200, 1e-12)
+    short = solve_schur(problem, x0, "cauchy", 1.0, 200, 1e-12, pose_tol=0.05)
+    assert short.iterations < full.iterations
+    cov = refine(tracks, start, RefinementConfig(robust_pose_tol=None)).covariance
+    assert np.all(np.abs(short.x[:6] - full.x[:6]) < 0.25 * _std(cov))
+    assert np.max(np.abs(short.x[6:] - full.x[6:])) > 1e-6  # the points had not settled: a real early stop
+    # In refine, warm-started (a relinearization: the last pose and points, these from a first adjustment of half
+    # the frames), the criterion changes neither the tracks kept nor the final estimate.
+    first = refine(build_track_set([(a, p, [(uv[::2], d[::2]) for uv, d in trs]) for a, p, trs in motions], FOCAL),
+                   start)
+    assert not first.track_inliers[:3].any()  # the drifting tracks are dropped
+    with_tol, without = (refine(tracks, first.T_camera_base, RefinementConfig(robust_pose_tol=tol),
+                                points_init=first.points_base) for tol in (0.05, None))
+    np.testing.assert_array_equal(with_tol.track_inliers, without.track_inliers)
+    assert not with_tol.track_inliers[:3].any()
+    xi = pose_difference(without.T_camera_base, with_tol.T_camera_base)
+    assert np.all(np.abs(xi) < 0.01 * _std(without.covariance))
 
 
 def _split(motions: list, n_old: int) -> tuple:
