@@ -140,7 +140,8 @@ def solve_schur(problem: Any, x0: FloatArray, loss: Loss = "linear", f_scale: fl
         ftol: the relative cost decrease of an accepted step below which the iteration stops.
         prior: a quadratic cost on the pose parameters, or None.
         pose_tol: also stop once an accepted step moves the pose by less than this fraction of its
-            1-sigma (``pose_step_sigmas``), whatever the points do; None: the cost criterion alone.
+            1-sigma (``pose_step_sigmas`` with the step's damped S, which lam keeps close to the
+            undamped one near the optimum), whatever the points do; None: the cost criterion alone.
 
     Returns:
         The solution (``SchurSolution``).
