@@ -45,7 +45,7 @@ from scipy.stats import chi2
 from solver.arrays import FloatArray
 from solver.errors import InsufficientMotionsError, InvalidInputError, TimeOffsetError
 from solver.frames import perturb, pose_difference, rotation_about_axis, skew, transform_from_rt
-from solver.schur import PosePrior, normal_blocks, solve_schur, track_starts
+from solver.schur import PosePrior, normal_blocks, robust_sigma, solve_schur, track_starts
 
 IntArray = NDArray[np.int64]
 Backend = Literal["schur", "scipy"]
@@ -1192,11 +1192,6 @@ def start_points(tracks: TrackSet, T_init: FloatArray, points_init: FloatArray |
     if keep.sum() < 2:
         raise InsufficientMotionsError(f"fewer than two {what} could be triangulated from the pose")
     return points, keep
-
-
-def robust_sigma(res: FloatArray) -> float:
-    """px: the noise per coordinate of residuals (P, 2) px, from their median absolute value (1.4826 MAD)."""
-    return 1.4826 * float(np.median(np.abs(res)))
 
 
 def agreeing_tracks(tracks: TrackSet, res: FloatArray, sigma: float, config: RefinementConfig) -> NDArray[np.bool_]:

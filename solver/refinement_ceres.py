@@ -43,9 +43,9 @@ from solver.refinement import (
     agreeing_tracks,
     conservative_covariance,
     kept_points,
-    robust_sigma,
     start_points,
 )
+from solver.schur import robust_sigma
 
 #: COLMAP ids of the rig, its reference camera (no images) and the observing camera.
 _RIG_ID, _REF_CAMERA_ID, _CAMERA_ID = 1, 1, 2

@@ -114,15 +114,20 @@ def normal_blocks(blocks: FloatArray, r: FloatArray, w: FloatArray, starts: np.n
     return U, W, V, g[:, :n].sum(axis=0), gx
 
 
+def robust_sigma(res: FloatArray) -> float:
+    """px: the noise per coordinate of residuals (P, 2) px, from their median absolute value (1.4826 MAD)."""
+    return 1.4826 * float(np.median(np.abs(res)))
+
+
 def pose_step_sigmas(dp: FloatArray, S: FloatArray, r: FloatArray) -> float:
     """How far a pose step dp (n,) goes in units of the pose's 1-sigma: sqrt(dp^T S dp) / sigma.
 
     ``S`` (n, n) is the (weighted) Schur information in px^2 per unit of the parameters, so that the
-    pose's covariance is sigma^2 S^-1; sigma (px) is the residuals' ``r`` (P, 2) robust noise per
-    coordinate (1.4826 MAD). A step along a direction the data fix well counts for more than the same
-    step along a weak one, as the robust pass's outlier points creep on while the pose stands still.
+    pose's covariance is sigma^2 S^-1; sigma (px) is the residuals' ``r`` (P, 2) ``robust_sigma``. A step
+    along a direction the data fix well counts for more than the same step along a weak one, as the
+    robust pass's outlier points creep on while the pose stands still.
     """
-    sigma = 1.4826 * float(np.median(np.abs(r)))
+    sigma = robust_sigma(r)
     quad = float(dp @ S @ dp)
     return float(np.sqrt(max(quad, 0.0))) / sigma if sigma > 0 else float("inf")
 
