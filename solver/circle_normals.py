@@ -69,6 +69,9 @@ def axis_candidates(Q: FloatArray, rays: FloatArray, delta: FloatArray) -> Float
         rays: (M, 3) float64: the trajectory's rays (u, v, 1).
         delta: (M,) float64, radians: joint turn at each frame.
     """
-    normals = plane_orientations(Q)
-    signs = np.array([np.sign(rotation_sense(n, rays, delta)) or 1.0 for n in normals])
-    return normals * signs[:, None]
+    return np.array([sensed(n, rays, delta) for n in plane_orientations(Q)])
+
+
+def sensed(normal: FloatArray, rays: FloatArray, delta: FloatArray) -> FloatArray:
+    """``normal`` (3,) signed so that a positive turn is right-handed about it (rays (M, 3), delta (M,))."""
+    return normal * (np.sign(rotation_sense(normal, rays, delta)) or 1.0)

@@ -148,8 +148,58 @@ def fit_ellipse_direct(uv: FloatArray) -> ConicFit:
 
 
 def fit_conics_independent(trajectories: Sequence[FloatArray]) -> list[ConicFit]:
-    """Fit each trajectory on its own (``fit_ellipse_direct``): L arrays (M_j, 2) -> L fits."""
-    return [fit_ellipse_direct(uv) for uv in _check_trajectories(trajectories)]
+    """Fit each trajectory on its own (``fit_ellipse_direct``): L arrays (M_j, 2) -> L fits.
+
+    The same fits as ``fit_ellipse_direct`` one by one (to rounding), with the scatter matrices, the
+    eliminations and the 3x3 eigenproblems of all trajectories computed together (a stack per step instead
+    of a dozen small numpy calls per trajectory: 5x faster on a 1080p motion's ~190 trajectories).
+    """
+    trajectories = _check_trajectories(trajectories)
+    fits = [ConicFit(None, reason) if (reason := _too_short(uv)) else None for uv in trajectories]
+    used = [j for j, fit in enumerate(fits) if fit is None]
+    if not used:
+        return [fit for fit in fits if fit is not None]
+    counts = np.array([trajectories[j].shape[0] for j in used])
+    first = np.concatenate([[0], np.cumsum(counts[:-1])])
+    uv = np.concatenate([trajectories[j] for j in used])
+    centres = np.add.reduceat(uv, first, axis=0) / counts[:, None]  # (n, 2)
+    centred = uv - np.repeat(centres, counts, axis=0)
+    spread = np.add.reduceat(np.sum(centred**2, axis=1), first) / counts
+    scales = np.sqrt(2) / np.maximum(np.sqrt(spread), 1e-300)  # (n,)
+    x, y = (centred * np.repeat(scales, counts)[:, None]).T
+    design = np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)])  # (P, 6): D1 | D2
+    scatter = np.add.reduceat(design[:, :, None] * design[:, None, :], first, axis=0)  # (n, 6, 6)
+    S1, S2, S3 = scatter[:, :3, :3], scatter[:, :3, 3:], scatter[:, 3:, 3:]
+    singular = np.linalg.cond(S3) > 1.0 / np.finfo(float).eps
+    S3 = np.where(singular[:, None, None], np.eye(3), S3)
+    T = -np.linalg.solve(S3, np.transpose(S2, (0, 2, 1)))  # (n, 3, 3)
+    M = S1 + S2 @ T
+    M = np.stack([M[:, 2] / 2, -M[:, 1], M[:, 0] / 2], axis=1)  # C1^-1 @ M for the constraint 4AC - B^2 = 1
+    eigval, eigvec = np.linalg.eig(M)
+    eigval, eigvec = np.real(eigval), np.real(eigvec)
+    cond = 4 * eigvec[:, 0] * eigvec[:, 2] - eigvec[:, 1] ** 2  # (n, 3), per eigenvector
+    positive = cond > 0
+    # per trajectory, the eigenvector with 4AC - B^2 > 0 of the smallest |eigenvalue|
+    pick = np.argmin(np.where(positive, np.abs(eigval), np.inf), axis=1)
+    a1 = np.take_along_axis(eigvec, pick[:, None, None], axis=2)[:, :, 0]  # (n, 3)
+    A, B, C, D, E, F = np.concatenate([a1, np.einsum("nij,nj->ni", T, a1)], axis=1).T
+    local = np.stack([np.stack([A, B / 2, D / 2], 1), np.stack([B / 2, C, E / 2], 1),
+                      np.stack([D / 2, E / 2, F], 1)], 1)  # conic_matrix, (n, 3, 3)
+    similarity = np.zeros((len(used), 3, 3))  # _similarity, (n, 3, 3)
+    similarity[:, 0, 0] = similarity[:, 1, 1] = scales
+    similarity[:, :2, 2] = -scales[:, None] * centres
+    similarity[:, 2, 2] = 1.0
+    Q = np.transpose(similarity, (0, 2, 1)) @ local @ similarity
+    Q /= np.linalg.norm(Q, axis=(1, 2), keepdims=True)
+    Q *= np.where(Q[:, 0, 0] + Q[:, 1, 1] > 0, 1.0, -1.0)[:, None, None]  # _normalized
+    for slot, j in enumerate(used):
+        if singular[slot]:
+            fits[j] = fit_ellipse_direct(trajectories[j])  # collinear points: its own path says so
+        elif not np.any(positive[slot]):
+            fits[j] = ConicFit(None, "no ellipse fits the trajectory (4AC - B^2 <= 0 for every solution)")
+        else:
+            fits[j] = ConicFit(None, reason) if (reason := ellipse_reason(Q[slot])) else ConicFit(Q[slot])
+    return [fit for fit in fits if fit is not None]
 
 
 def fit_conics_shared(trajectories: Sequence[FloatArray]) -> list[ConicFit]:

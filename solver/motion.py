@@ -21,7 +21,7 @@ from scipy.optimize import least_squares
 
 from solver.arrays import FloatArray
 from solver.camera import normalized_from_pixels, rays_from_normalized
-from solver.circle_normals import axis_candidates
+from solver.circle_normals import plane_orientations, sensed
 from solver.conics import fit_conics_independent, fit_conics_shared
 from solver.errors import DegenerateMotionError, DegenerateTrajectoryError, InvalidInputError
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
@@ -341,14 +341,16 @@ def estimate_motion_geometry(obs: MotionObservation, intrinsics: CameraIntrinsic
         fits = fit_conics_shared(uv) if config.conic_fit == "shared" else fit_conics_independent(uv)
     except DegenerateTrajectoryError:
         fits = []
-    candidates = [np.zeros((0, 3))]
+    normals = [np.zeros((0, 3))]  # each ellipse's two circle normals (Eq. 14), signs not yet known
+    owners: list[int] = []
     for fit, s in zip(fits, usable, strict=False):
         if fit.ok:
             try:
-                candidates.append(axis_candidates(fit.matrix, rays[s], deltas[s]))
+                normals.append(plane_orientations(fit.matrix))
             except DegenerateTrajectoryError:
                 continue
-    cand = np.concatenate(candidates)
+            owners += [s, s]
+    cand = np.concatenate(normals)
     n_ellipses = sum(f.ok for f in fits)
     if n_ellipses < config.min_ellipses:
         reasons = sorted({f.reason for f in fits if not f.ok})
@@ -356,8 +358,11 @@ def estimate_motion_geometry(obs: MotionObservation, intrinsics: CameraIntrinsic
             f"only {n_ellipses} of {len(usable)} moving trajectories are ellipses (need "
             f"{config.min_ellipses}): {'; '.join(reasons)}"
         )
+    picked = np.arange(cand.shape[0])
     if cand.shape[0] > config.max_candidates:
-        cand = cand[rng.choice(cand.shape[0], config.max_candidates, replace=False)]
+        picked = rng.choice(cand.shape[0], config.max_candidates, replace=False)
+    # the rotation sense only of the candidates scored (``axis_candidates``'s signs, for a sample of them)
+    cand = np.array([sensed(cand[k], rays[owners[k]], deltas[owners[k]]) for k in picked]).reshape(-1, 3)
     if config.grid_size:
         cand = np.concatenate([cand, fibonacci_sphere(config.grid_size)])
     if cand.shape[0] == 0:

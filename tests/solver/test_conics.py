@@ -201,6 +201,24 @@ def _shared_fit_misfit_px(depth: float) -> float:
                                                                                 strict=True))
 
 
+def test_independent_fits_together_equal_fits_one_by_one(rng):
+    """fit_conics_independent fits a stack at once: the same verdicts, reasons and matrices as fit_ellipse_direct
+    per trajectory, on a batch mixing noisy arcs, an exact arc, short and static ones, lines and an edge-on circle."""
+    batch = [_arc(rng)[0] + rng.normal(0.0, 2e-4, (1, 2)) for _ in range(6)]
+    batch += [_arc(rng, n_points=MIN_POINTS_PER_TRAJECTORY - 1)[0], np.tile([[0.1, 0.2]], (10, 1))]
+    batch += [make.values[0](rng) for make in COLLINEAR_CASES] + [_arc(rng, n_points=40)[0]]
+    order = rng.permutation(len(batch))
+    batch = [batch[k] for k in order]
+    together = fit_conics_independent(batch)
+    assert len(together) == len(batch)
+    for uv, fit in zip(batch, together, strict=True):
+        alone = fit_ellipse_direct(uv)
+        assert (fit.ok, fit.reason) == (alone.ok, alone.reason)
+        if alone.ok:
+            np.testing.assert_allclose(fit.matrix, alone.matrix, atol=1e-9)
+    assert sum(fit.ok for fit in together) >= 7  # the arcs fit; the rest give their reasons
+
+
 def test_shared_fit_of_coaxial_circles_far_away():
     assert _shared_fit_misfit_px(20.0) < SHARED_WEAK_PERSPECTIVE_PX
 
