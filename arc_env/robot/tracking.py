@@ -530,7 +530,7 @@ def _centred(values: NDArray[np.float32], root: NDArray[np.float32] | None) -> N
     if root is None:
         return values - values.mean(axis=-1, keepdims=True)
     weights = root * root
-    return ((values - (values @ weights / weights.sum())[..., None]) * root).astype(np.float32)
+    return ((values - (values @ weights / weights.sum())[..., None]) * root).astype(np.float32, copy=False)
 
 
 def _bend_px(Q: FloatArray, half: int) -> FloatArray:
@@ -573,7 +573,10 @@ def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float
     if quadratic:
         half = w // 2
         mono = _monomials(x, y, half).astype(np.float32)
-    for _ in range(config.affine_iterations):
+    # The patch's map as one product: rows (m, k) of map coefficients times the (k, P) basis (x, y, 1[, monomials]).
+    basis = np.vstack([x, y, np.ones_like(x)] + ([mono.T] if quadratic else []))
+    energy = np.maximum(np.sum(live.template * live.template, axis=1), 1e-6)  # (n,): the gain's denominator
+    for iteration in range(config.affine_iterations):
         if active.size == 0:
             break
         m = active.size
@@ -581,29 +584,19 @@ def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float
         template = live.template if every else live.template[active]
         steepest = live.steepest if every else live.steepest[active]
         hessian_inv = live.hessian_inv if every else live.hessian_inv[active]
-        a = A[active].astype(np.float32)
-        ta = t[active].astype(np.float32)
-        map_x = ta[:, 0, None] + a[:, 0, 0, None] * x + a[:, 0, 1, None] * y
-        map_y = ta[:, 1, None] + a[:, 1, 0, None] * x + a[:, 1, 1, None] * y
+        coefficients = np.empty((2, m, basis.shape[0]), np.float32)  # map_x's rows, then map_y's
+        coefficients[:, :, :2] = np.transpose(A[active], (1, 0, 2))
+        coefficients[:, :, 2] = t[active].T
         if quadratic:
-            q = Q[active].astype(np.float32)
-            map_x += q[:, 0] @ mono.T
-            map_y += q[:, 1] @ mono.T
-        warped = cv2.remap(image, map_x.reshape(m * w, w), map_y.reshape(m * w, w), cv2.INTER_LINEAR,
+            coefficients[:, :, 3:] = np.transpose(Q[active], (1, 0, 2))
+        maps = coefficients.reshape(2 * m, -1) @ basis  # (2m, P): map_x, then map_y
+        warped = cv2.remap(image, maps[:m].reshape(m * w, w), maps[m:].reshape(m * w, w), cv2.INTER_LINEAR,
                            borderMode=cv2.BORDER_REPLICATE)
-        warped = warped.reshape(m, -1).astype(np.float32)
-        warped = _centred(warped, root)
+        warped = _centred(warped.reshape(m, -1).astype(np.float32), root)
         # The patch's contrast may have changed (exposure, shading): compare at the best gain.
-        gain = np.sum(warped * template, axis=1) / np.maximum(np.sum(template * template, axis=1), 1e-6)
+        gain = np.sum(warped * template, axis=1) / (energy if every else energy[active])
         gain = np.clip(gain, 1.0 / config.max_gain_change, config.max_gain_change)[:, None]
         error = warped / gain - template
-        rms[active] = np.sqrt(np.mean(error * error, axis=1)) / (live.scale if every else live.scale[active]
-                                                                  ).astype(np.float64)
-        if root is not None:  # the whole window, unweighted, at the fitted map and gain: a rim that slid
-            whole = error / root
-            whole -= whole.mean(axis=1, keepdims=True)
-            rim = np.sqrt(np.mean(whole * whole, axis=1)) / (live.window_scale if every else live.window_scale[active])
-            rms[active] = np.maximum(rms[active], rim * (config.max_dissimilarity / config.max_window_dissimilarity))
         gradient = np.matmul(steepest, error[..., None]).astype(np.float64)
         if quadratic and config.quadratic_ridge > 0:  # the prior pulls the quadratic part towards 0
             gradient[:, 6:, 0] += (live.ridge if every else live.ridge[active])[:, None] * Q[active].reshape(-1, 6)
@@ -611,6 +604,11 @@ def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float
         sane = (np.all(np.isfinite(step), axis=1) & np.all(np.abs(step[:, :4]) < 0.5, axis=1)
                 & np.all(np.abs(step[:, 6:]) < 0.5, axis=1)
                 & np.all(np.abs(step[:, 4:]) < w / 2, axis=1))
+        # The dissimilarity at this map, of the tracks that stop here (failed, converged, or out of iterations).
+        leaving = ~sane | (np.max(np.abs(step[:, 4:6]), axis=1) < eps) | (iteration == config.affine_iterations - 1)
+        if np.any(leaving):
+            going = active[leaving]
+            rms[going] = _dissimilarity(error[leaving], live.scale[going], live.window_scale[going], root, config)
         valid[active[~sane]] = False
         active, step = active[sane], step[sane]
         if quadratic:
@@ -631,7 +629,7 @@ def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float
             active = active[np.max(np.abs(step[:, 4:6]), axis=1) >= eps]
             continue
         # Compose with the inverse of the increment: A <- A (I + D)^-1, t <- t - A_new d.
-        A_new = np.matmul(A[active], np.linalg.inv(np.eye(2) + step[:, :4].reshape(-1, 2, 2)))
+        A_new = np.matmul(A[active], _inverse_2x2(np.eye(2) + step[:, :4].reshape(-1, 2, 2)))
         t[active] -= np.matmul(A_new, step[:, 4:, None])[..., 0]
         A[active] = A_new
         active = active[np.max(np.abs(step[:, 4:]), axis=1) >= eps]
@@ -643,6 +641,31 @@ def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float
     live.A = A
     live.Q = Q
     return t, rms, valid
+
+
+def _dissimilarity(error: NDArray[np.float32], scale: NDArray[np.float32], window_scale: NDArray[np.float32],
+                   root: NDArray[np.float32] | None, config: TrackerConfig) -> FloatArray:
+    """(m,) the patches' dissimilarities (``TrackerConfig.max_dissimilarity``) from their fit residuals (m, P).
+
+    The RMS of the (weighted) residual over the first patch's spread ``scale`` (m,); with a Gaussian window also the
+    whole window's, unweighted, over ``window_scale`` (m,), scaled to the same threshold: a rim that slid.
+    """
+    rms = np.sqrt(np.mean(error * error, axis=1)) / scale.astype(np.float64)
+    if root is None:
+        return rms
+    whole = error / root
+    whole -= whole.mean(axis=1, keepdims=True)
+    rim = np.sqrt(np.mean(whole * whole, axis=1)) / window_scale
+    return np.maximum(rms, rim * (config.max_dissimilarity / config.max_window_dissimilarity))
+
+
+def _inverse_2x2(M: FloatArray) -> FloatArray:
+    """(n, 2, 2) inverses of (n, 2, 2) matrices, in closed form (``np.linalg.inv`` costs more on a stack of 2x2)."""
+    det = M[:, 0, 0] * M[:, 1, 1] - M[:, 0, 1] * M[:, 1, 0]
+    inverse = np.empty_like(M)
+    inverse[:, 0, 0], inverse[:, 1, 1] = M[:, 1, 1] / det, M[:, 0, 0] / det
+    inverse[:, 0, 1], inverse[:, 1, 0] = -M[:, 0, 1] / det, -M[:, 1, 0] / det
+    return inverse
 
 
 def _refind(image: ImageArray, lost: _LiveTracks, lost_at: NDArray[np.int64], moved_from: FloatArray,
