@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from solver.circle_normals import axis_candidates, plane_orientations, rotation_sense
+from solver.circle_normals import axis_candidates, plane_orientations, rotation_sense, sensed
 from solver.conics import fit_ellipse_direct
 from solver.errors import DegenerateTrajectoryError
 from tests.solver.scene import (
@@ -145,3 +145,12 @@ def test_rotation_sense_sign_and_area():
     assert rotation_sense(n, rays, angles) > 0
     assert rotation_sense(n, rays, -angles) < 0
     assert rotation_sense(-n, rays, angles) < 0
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_sensed_signs_either_normal_as_the_turn(seed):
+    """Both signs of the true normal come back as the right-handed one; a turn the other way flips it."""
+    _, normal, _, delta, rays = _scene(seed)
+    for n in (normal, -normal):
+        np.testing.assert_allclose(sensed(n, rays, delta), normal, atol=1e-12)
+        np.testing.assert_allclose(sensed(n, rays, -delta), -normal, atol=1e-12)
