@@ -118,50 +118,30 @@ def fit_ellipse_direct(uv: FloatArray) -> ConicFit:
     Returns:
         The fit; ``reason`` says why it is not an ellipse when it is not one.
     """
-    (uv,) = _check_trajectories([uv])
-    if reason := _too_short(uv):
-        return ConicFit(None, reason)
-    centre = uv.mean(axis=0)
-    scale = np.sqrt(2) / max(np.sqrt(np.mean(np.sum((uv - centre) ** 2, axis=1))), 1e-300)
-    x, y = ((uv - centre) * scale).T
-    D1 = np.column_stack([x * x, x * y, y * y])
-    D2 = np.column_stack([x, y, np.ones_like(x)])
-    S1, S2, S3 = D1.T @ D1, D1.T @ D2, D2.T @ D2
-    try:
-        T = -np.linalg.solve(S3, S2.T)
-    except np.linalg.LinAlgError:
-        return ConicFit(None, "trajectory points are collinear")
-    M = S1 + S2 @ T
-    M = np.array([M[2] / 2, -M[1], M[0] / 2])  # C1^-1 @ M for the constraint 4AC - B^2 = 1
-    eigval, eigvec = np.linalg.eig(M)
-    eigvec = np.real(eigvec)
-    cond = 4 * eigvec[0] * eigvec[2] - eigvec[1] ** 2
-    positive = np.flatnonzero(cond > 0)
-    if positive.size == 0:
-        return ConicFit(None, "no ellipse fits the trajectory (4AC - B^2 <= 0 for every solution)")
-    a1 = eigvec[:, positive[np.argmin(np.abs(np.real(eigval[positive])))]]
-    S = _similarity(scale, centre)
-    Q = _normalized(S.T @ conic_matrix(np.concatenate([a1, T @ a1])) @ S)
-    if reason := ellipse_reason(Q):
-        return ConicFit(None, reason)
-    return ConicFit(Q)
+    return fit_conics_independent([uv])[0]
 
 
 def fit_conics_independent(trajectories: Sequence[FloatArray]) -> list[ConicFit]:
     """Fit each trajectory on its own (``fit_ellipse_direct``): L arrays (M_j, 2) -> L fits.
 
-    The same fits as ``fit_ellipse_direct`` one by one (to rounding), with the scatter matrices, the
-    eliminations and the 3x3 eigenproblems of all trajectories computed together (a stack per step instead
-    of a dozen small numpy calls per trajectory: 5x faster on a 1080p motion's ~190 trajectories).
+    Halir & Flusser's fit of every trajectory, computed together: the scatter matrices, the eliminations and
+    the 3x3 eigenproblems as stacks (one call per step instead of a dozen small numpy calls per trajectory:
+    5x faster on a 1080p motion's ~190 trajectories). Each fit depends on its own trajectory only.
     """
     trajectories = _check_trajectories(trajectories)
-    fits = [ConicFit(None, reason) if (reason := _too_short(uv)) else None for uv in trajectories]
+    fits: list[ConicFit | None] = [ConicFit(None, r) if (r := _too_short(uv)) else None for uv in trajectories]
     used = [j for j, fit in enumerate(fits) if fit is None]
-    if not used:
-        return [fit for fit in fits if fit is not None]
-    counts = np.array([trajectories[j].shape[0] for j in used])
+    if used:
+        for j, fit in zip(used, _direct_fits([trajectories[j] for j in used]), strict=True):
+            fits[j] = fit
+    return [fit for fit in fits if fit is not None]
+
+
+def _direct_fits(trajectories: list[FloatArray]) -> list[ConicFit]:
+    """``fit_conics_independent`` of trajectories long enough to fit: n arrays (M_j >= 6, 2) -> n fits."""
+    counts = np.array([uv.shape[0] for uv in trajectories])
     first = np.concatenate([[0], np.cumsum(counts[:-1])])
-    uv = np.concatenate([trajectories[j] for j in used])
+    uv = np.concatenate(trajectories)
     centres = np.add.reduceat(uv, first, axis=0) / counts[:, None]  # (n, 2)
     centred = uv - np.repeat(centres, counts, axis=0)
     spread = np.add.reduceat(np.sum(centred**2, axis=1), first) / counts
@@ -170,36 +150,42 @@ def fit_conics_independent(trajectories: Sequence[FloatArray]) -> list[ConicFit]
     design = np.column_stack([x * x, x * y, y * y, x, y, np.ones_like(x)])  # (P, 6): D1 | D2
     scatter = np.add.reduceat(design[:, :, None] * design[:, None, :], first, axis=0)  # (n, 6, 6)
     S1, S2, S3 = scatter[:, :3, :3], scatter[:, :3, 3:], scatter[:, 3:, 3:]
-    singular = np.linalg.cond(S3) > 1.0 / np.finfo(float).eps
-    S3 = np.where(singular[:, None, None], np.eye(3), S3)
-    T = -np.linalg.solve(S3, np.transpose(S2, (0, 2, 1)))  # (n, 3, 3)
+    S2t = np.transpose(S2, (0, 2, 1))
+    # T = -S3^-1 S2^T. S3 is the scatter of (x, y, 1): singular to working precision when the points are collinear
+    # (where LAPACK's own verdict on an exactly singular matrix would hang on rounding).
+    collinear = np.linalg.cond(S3) > 1.0 / np.finfo(float).eps
+    T = np.zeros_like(S3)
+    T[~collinear] = -np.linalg.solve(S3[~collinear], S2t[~collinear])
     M = S1 + S2 @ T
     M = np.stack([M[:, 2] / 2, -M[:, 1], M[:, 0] / 2], axis=1)  # C1^-1 @ M for the constraint 4AC - B^2 = 1
-    eigval, eigvec = np.linalg.eig(M)
+    finite = np.all(np.isfinite(M), axis=(1, 2))
+    eigval, eigvec = np.linalg.eig(np.where(finite[:, None, None], M, np.eye(3)))
     eigval, eigvec = np.real(eigval), np.real(eigvec)
-    cond = 4 * eigvec[:, 0] * eigvec[:, 2] - eigvec[:, 1] ** 2  # (n, 3), per eigenvector
-    positive = cond > 0
+    positive = 4 * eigvec[:, 0] * eigvec[:, 2] - eigvec[:, 1] ** 2 > 0  # (n, 3): 4AC - B^2 of each eigenvector
     # per trajectory, the eigenvector with 4AC - B^2 > 0 of the smallest |eigenvalue|
     pick = np.argmin(np.where(positive, np.abs(eigval), np.inf), axis=1)
     a1 = np.take_along_axis(eigvec, pick[:, None, None], axis=2)[:, :, 0]  # (n, 3)
     A, B, C, D, E, F = np.concatenate([a1, np.einsum("nij,nj->ni", T, a1)], axis=1).T
     local = np.stack([np.stack([A, B / 2, D / 2], 1), np.stack([B / 2, C, E / 2], 1),
                       np.stack([D / 2, E / 2, F], 1)], 1)  # conic_matrix, (n, 3, 3)
-    similarity = np.zeros((len(used), 3, 3))  # _similarity, (n, 3, 3)
+    similarity = np.zeros((len(trajectories), 3, 3))  # _similarity, (n, 3, 3)
     similarity[:, 0, 0] = similarity[:, 1, 1] = scales
     similarity[:, :2, 2] = -scales[:, None] * centres
     similarity[:, 2, 2] = 1.0
     Q = np.transpose(similarity, (0, 2, 1)) @ local @ similarity
     Q /= np.linalg.norm(Q, axis=(1, 2), keepdims=True)
     Q *= np.where(Q[:, 0, 0] + Q[:, 1, 1] > 0, 1.0, -1.0)[:, None, None]  # _normalized
-    for slot, j in enumerate(used):
-        if singular[slot]:
-            fits[j] = fit_ellipse_direct(trajectories[j])  # collinear points: its own path says so
-        elif not np.any(positive[slot]):
-            fits[j] = ConicFit(None, "no ellipse fits the trajectory (4AC - B^2 <= 0 for every solution)")
+    fits = []
+    for k in range(len(trajectories)):
+        if collinear[k]:
+            fits.append(ConicFit(None, "trajectory points are collinear"))
+        elif not finite[k]:
+            fits.append(ConicFit(None, "conic fit is degenerate"))
+        elif not np.any(positive[k]):
+            fits.append(ConicFit(None, "no ellipse fits the trajectory (4AC - B^2 <= 0 for every solution)"))
         else:
-            fits[j] = ConicFit(None, reason) if (reason := ellipse_reason(Q[slot])) else ConicFit(Q[slot])
-    return [fit for fit in fits if fit is not None]
+            fits.append(ConicFit(None, reason) if (reason := ellipse_reason(Q[k])) else ConicFit(Q[k]))
+    return fits
 
 
 def fit_conics_shared(trajectories: Sequence[FloatArray]) -> list[ConicFit]:

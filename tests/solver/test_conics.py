@@ -202,8 +202,8 @@ def _shared_fit_misfit_px(depth: float) -> float:
 
 
 def test_independent_fits_together_equal_fits_one_by_one(rng):
-    """fit_conics_independent fits a stack at once: the same verdicts, reasons and matrices as fit_ellipse_direct
-    per trajectory, on a batch mixing noisy arcs, an exact arc, short and static ones, lines and an edge-on circle."""
+    """fit_conics_independent fits a stack at once: the same verdicts, reasons and matrices as each trajectory fitted
+    alone, on a batch mixing noisy arcs, an exact arc, short and static ones, lines and an edge-on circle."""
     batch = [_arc(rng)[0] + rng.normal(0.0, 2e-4, (1, 2)) for _ in range(6)]
     batch += [_arc(rng, n_points=MIN_POINTS_PER_TRAJECTORY - 1)[0], np.tile([[0.1, 0.2]], (10, 1))]
     batch += [make.values[0](rng) for make in COLLINEAR_CASES] + [_arc(rng, n_points=40)[0]]
