@@ -605,12 +605,13 @@ def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float
                 & np.all(np.abs(step[:, 6:]) < 0.5, axis=1)
                 & np.all(np.abs(step[:, 4:]) < w / 2, axis=1))
         # The dissimilarity at this map, of the tracks that stop here (failed, converged, or out of iterations).
-        leaving = ~sane | (np.max(np.abs(step[:, 4:6]), axis=1) < eps) | (iteration == config.affine_iterations - 1)
+        converged = np.max(np.abs(step[:, 4:6]), axis=1) < eps  # the translation's step
+        leaving = ~sane | converged | (iteration == config.affine_iterations - 1)
         if np.any(leaving):
             going = active[leaving]
             rms[going] = _dissimilarity(error[leaving], live.scale[going], live.window_scale[going], root, config)
         valid[active[~sane]] = False
-        active, step = active[sane], step[sane]
+        active, step, converged = active[sane], step[sane], converged[sane]
         if quadratic:
             # W <- W o W_step^-1 to first order in the step (the exact inverse of a quadratic map is not
             # quadratic): W(x - s(x)) = W(x) - (A + Q dm/dx) s(x), s(x) = d + D x + E m(x), cubic terms dropped.
@@ -626,13 +627,13 @@ def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float
             t[active] -= np.matmul(a, d[..., None])[..., 0]
             A[active] = a - np.matmul(a, D) - np.matmul(q, M_d)
             Q[active] = q - np.matmul(a, E) - np.matmul(q, M_D)
-            active = active[np.max(np.abs(step[:, 4:6]), axis=1) >= eps]
+            active = active[~converged]
             continue
         # Compose with the inverse of the increment: A <- A (I + D)^-1, t <- t - A_new d.
         A_new = np.matmul(A[active], _inverse_2x2(np.eye(2) + step[:, :4].reshape(-1, 2, 2)))
         t[active] -= np.matmul(A_new, step[:, 4:, None])[..., 0]
         A[active] = A_new
-        active = active[np.max(np.abs(step[:, 4:]), axis=1) >= eps]
+        active = active[~converged]
     det = np.linalg.det(A)
     valid &= ((det > 1.0 / _MAX_AREA_RATIO) & (det < _MAX_AREA_RATIO)
               & (np.linalg.norm(t - guess, axis=1) <= _MAX_REFINE_SHIFT_PX))
