@@ -151,12 +151,15 @@ def candidate_scores(rays: FloatArray, delta: FloatArray, track_ids: IntArray, n
     """Eq. 18's score of many candidate axes at once (C,): ``candidate_score`` of each one's phase circles.
 
     The same as ``candidate_score(fit_phase_circles(project_to_plane(rays, a), delta, track_ids, n_tracks))``
-    for every row ``a`` of ``axes`` (to about 1e-5 relative), over blocks of candidates. Each trajectory's
-    misfit comes from its moments, never from per-point residuals: with z = x + i y its plane coordinates,
-    the least-squares circle's cost is sum |z|^2 - Re(c conj(Z1) + gamma conj(Z2)) (the residual is
-    orthogonal to the model), and Z1, Z2, sum |z|^2 are sparse products of the (P, 2 C) coordinates with
-    per-trajectory weights 1, cos delta and sin delta. So the per-point work is one projection and one
-    square per candidate (half the time of forming the residuals, on captured 1080p motions).
+    for every row ``a`` of ``axes`` (to rounding), over blocks of candidates. Each trajectory's misfit comes
+    from its moments, never from per-point residuals: with z = x + i y its plane coordinates, the
+    least-squares circle's cost is sum |z|^2 - Re(c conj(Z1) + gamma conj(Z2)) (the residual is orthogonal
+    to the model), and Z1, Z2, sum |z|^2 are sparse products of the (P, 2 C) coordinates with
+    per-trajectory weights 1, cos delta and sin delta. The coordinates are taken from one point of each
+    trajectory (a shift its circle absorbs), so the difference does not cancel |z|^2 ~ 1 against a misfit
+    of ~1e-8 (relative error 4e-6 -> 4e-9 of the per-point residuals' scores on captured 1080p motions).
+    So the per-point work is one projection, one shift and one square per candidate (0.59 s against 1.07 s
+    for forming the residuals, on a captured 1080p episode's 25 motions).
 
     Args:
         rays: (P, 3) float64: rays (u, v, 1) of every trajectory's points, camera frame.
@@ -179,6 +182,9 @@ def candidate_scores(rays: FloatArray, delta: FloatArray, track_ids: IntArray, n
                           (np.concatenate([track_ids, track_ids + L, track_ids + 2 * L]), np.tile(points, 3))),
                          shape=(3 * L, P))
     n = np.bincount(track_ids, minlength=L).astype(np.float64)[:, None]  # (L, 1)
+    first = np.zeros(L, dtype=np.int64)
+    first[track_ids[::-1]] = points[::-1]  # a point of each trajectory (its first)
+    anchor = first[track_ids]  # (P,)
     S = (one_hot @ (cos + 1j * sin))[:, None]
     det = n * n - np.abs(S) ** 2
     good = det > 1e-12 * np.maximum(n * n, 1.0)
@@ -190,6 +196,7 @@ def candidate_scores(rays: FloatArray, delta: FloatArray, track_ids: IntArray, n
         m = axes[block].shape[0]
         xy = rays @ np.concatenate([e1[block], e2[block]]).T  # (P, 2m): x then y; X = ray / depth lies on sigma
         xy /= np.tile(rays @ axes[block].T, 2)
+        xy -= xy[anchor]  # each trajectory's coordinates from one of its points: a shift its circle absorbs
         sums = weighted @ xy  # (3L, 2m)
         squares = one_hot @ (xy * xy)  # (L, 2m)
         Z1 = sums[:L, :m] + 1j * sums[:L, m:]  # sum z
@@ -205,7 +212,8 @@ def candidate_scores(rays: FloatArray, delta: FloatArray, track_ids: IntArray, n
 
 
 #: Candidates per block of ``candidate_scores`` (memory: about 60 * chunk * P bytes). On the 25 motions of a
-#: captured 1080p episode (2 700-4 800 points, 648 candidates each) 32 took 0.57 s, 64 0.63 s, 128 0.64 s.
+#: captured 1080p episode (2 700-4 800 points, 648 candidates each), before the shift to a point of each
+#: trajectory, 32 took 0.57 s, 64 0.63 s, 128 0.64 s.
 _SCORE_CHUNK = 32
 
 

@@ -161,7 +161,7 @@ def test_candidate_scores_match_one_candidate_at_a_time(rng):
     axes = np.vstack([axis, -axis, [unit(rng.normal(size=3)) for _ in range(300)]])
     batched = candidate_scores(rays, delta, track_ids, 9, axes)
     single = [candidate_score(fit_phase_circles(project_to_plane(rays, a), delta, track_ids, 9)) for a in axes]
-    np.testing.assert_allclose(batched, single, rtol=1e-6)  # the moments cancel: ~1e-9 on the true axis
+    np.testing.assert_allclose(batched, single, rtol=1e-9)
     assert np.argmin(batched) == 0 and batched[0] < 1e-3 * np.median(batched)  # the scores tell axes apart
 
 
