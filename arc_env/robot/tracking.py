@@ -94,6 +94,12 @@ class TrackerConfig:
         affine_iterations: most Gauss–Newton steps of the per-frame affine refinement against the
             track's first patch (a win_size_px square); count, 0 = plain LK (no refinement and no
             dissimilarity check; faster, but drifts on rotating links).
+        affine_step_px: the affine refinement stops for a track once its translation step is below this;
+            pixels, > 0. 0.03, not LK's 0.01 (``criteria``): a fitted patch errs by ~0.1 px per frame on
+            clean painted sweeps, and 9 % of the tracks never got under 0.01 px and ran all
+            ``affine_iterations``. On 12 captured clean 1080p sweeps the tracker took 8.4 -> 7.4 ms per
+            frame; the truth figures of captured 720p sweeps did not move (clean painted: end error 0.56 ->
+            0.55 px, within 1 px 59 % both; realistic: 2.71 -> 2.69 px, 16 % both).
         max_dissimilarity: a track ends when the RMS residual of its affine fit against its first
             patch, after removing the mean and the best gain (within ``max_gain_change``), exceeds
             this fraction of the first patch's standard deviation; dimensionless (0 = identical
@@ -178,6 +184,7 @@ class TrackerConfig:
     min_track_frames: int = 10
     min_displacement_px: float = 3.0
     affine_iterations: int = 10
+    affine_step_px: float = 0.03
     max_dissimilarity: float = 0.4
     max_gain_change: float = 1.5
     refind_frames: int = 0
@@ -204,6 +211,7 @@ class TrackerConfig:
             (self.min_track_frames >= 2, "min_track_frames must be >= 2"),
             (self.min_displacement_px >= 0.0, "min_displacement_px must be >= 0"),
             (self.affine_iterations >= 0, "affine_iterations must be >= 0 (0 = plain LK)"),
+            (self.affine_step_px > 0.0, "affine_step_px must be > 0"),
             (self.max_dissimilarity > 0.0, "max_dissimilarity must be > 0"),
             (self.max_window_dissimilarity > 0.0, "max_window_dissimilarity must be > 0"),
             (self.max_gain_change >= 1.0, "max_gain_change must be >= 1"),
@@ -552,7 +560,7 @@ def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float
         image: (h, w) uint8 crop of the current frame.
         live: the tracks; ``live.A`` is the previous frame's fit and is updated in place.
         guess: (n, 2) float32, pixels: LK positions in ``image`` (the translation's start value).
-        config: iterations, window and the translation step (``criteria[2]``) that counts as converged.
+        config: iterations, window and the translation step (``affine_step_px``) that counts as converged.
 
     Returns:
         (n, 2) float64 refined positions, (n,) float64 dissimilarities, (n,) bool fit succeeded.
@@ -565,7 +573,7 @@ def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float
     rms = np.full(n, np.inf)
     valid = np.ones(n, dtype=bool)
     active = np.arange(n)
-    eps = max(config.criteria[2], 1e-4)
+    eps = config.affine_step_px
     x, y = offsets[:, 0], offsets[:, 1]
     quadratic = live.steepest.shape[1] == 12
     root = _root_weights(config)
