@@ -24,6 +24,7 @@ from solver.errors import (
     DegenerateTrajectoryError,
     InsufficientMotionsError,
     InvalidInputError,
+    NonRigidTracksError,
     TimeOffsetError,
     UnobservablePoseError,
 )
@@ -72,6 +73,7 @@ __all__ = [
     "MotionGeometry",
     "MotionObservation",
     "MotionReport",
+    "NonRigidTracksError",
     "RefinementConfig",
     "RefinementResult",
     "SyntheticConfig",

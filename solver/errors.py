@@ -19,6 +19,13 @@ class DegenerateMotionError(ArcCalibError):
     """A whole exploratory motion yields no rotation axis or reference line."""
 
 
+class NonRigidTracksError(DegenerateMotionError):
+    """Too few of a motion's tracks turn as one rigid body by the known angles, from any start tried.
+
+    The rigid front end's verdict, the conic front end's axis among the starts: the tracks support no axis.
+    """
+
+
 class InsufficientMotionsError(ArcCalibError):
     """Too few accepted motions to estimate T_camera_base."""
 

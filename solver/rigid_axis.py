@@ -34,7 +34,7 @@ from scipy.spatial.transform import Rotation
 
 from solver.arrays import FloatArray, evenly_spaced
 from solver.camera import normalized_from_pixels
-from solver.errors import DegenerateMotionError, InvalidInputError
+from solver.errors import DegenerateMotionError, InvalidInputError, NonRigidTracksError
 from solver.frames import skew
 from solver.motion import MotionGeometry
 from solver.observations import CameraIntrinsics, MotionObservation
@@ -905,8 +905,8 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     keep = track_rms <= threshold
     n_in, n_need = int(keep.sum()), max(config.min_tracks, int(np.ceil(config.min_inlier_fraction * L)))
     if n_in < n_need:
-        raise DegenerateMotionError(f"rigid front end: only {n_in} of {L} tracks move rigidly together within "
-                                    f"{threshold:.2g} px (need {n_need})")
+        raise NonRigidTracksError(f"rigid front end: only {n_in} of {L} tracks move rigidly together within "
+                                  f"{threshold:.2g} px (need {n_need})")
     rms_in = float(np.sqrt(np.mean(track_rms[keep] ** 2)))
     if not axis_std <= config.max_axis_std:
         raise DegenerateMotionError(

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 import solver.rigid_axis as rigid_axis_module
 from solver.camera import normalized_from_pixels
-from solver.errors import DegenerateMotionError, InvalidInputError
+from solver.errors import DegenerateMotionError, InvalidInputError, NonRigidTracksError
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
 from solver.rigid_axis import (
     RigidAxisConfig,
@@ -496,7 +496,7 @@ def test_the_relative_poses_are_tried_only_when_no_earlier_fit_is_usable(monkeyp
     always = rigid_axis_of_motion(obs, CAMERA)
     assert calls == {"grid": 2, "relative": 1}
     assert _angle(fit.axis_cam, axis) < np.radians(1.0) and _angle(always.axis_cam, fit.axis_cam) < 1e-6
-    with pytest.raises(DegenerateMotionError, match="move rigidly together"):
+    with pytest.raises(NonRigidTracksError, match="move rigidly together"):
         rigid_axis_of_motion(obs, CAMERA, RigidAxisConfig(relative_pose_if_needed=True, min_inlier_fraction=0.9))
     assert calls == {"grid": 3, "relative": 2}
 
