@@ -270,10 +270,10 @@ class _Motion:
 #: serve as the rigid front end's start and fallback, and its fit from the refined pose's prediction needs neither.
 CONICS_NOT_RUN = "not run: the rigid front end's fit from the predicted axis was taken"
 #: ``MotionReport.conics`` when the conics gave an axis that the rigid front end, started from it, found the tracks
-#: do not follow (``NonRigidTracksError``): not used. On the captured realistic episodes of the last stops (ten of 25
-#: motions, eight first-eight-motion ones) the conics' axis where the rigid fit failed so was 7, 80 and 104 degrees
-#: off (where it failed for other reasons: 4 and 41), and on a 720p iiwa episode the 104-degree axis seeded a pose
-#: family that the adjustment turned into a pose 2.5 rad / 1.1 m off with a 1-sigma of 17 mm.
+#: do not follow (``NonRigidTracksError``): not used. On captured realistic episodes (ten of 25 motions and eight of
+#: 8) the conics' axes where the rigid fit failed so were 7, 80 and 104 degrees off (where it failed for other
+#: reasons: 4 and 41), and on a 720p iiwa episode the 104-degree axis seeded a pose family that the adjustment
+#: turned into a pose 2.5 rad / 1.1 m off with a 1-sigma of 17 mm.
 CONICS_NOT_RIGID = "its axis is not used: the rigid front end found the tracks do not turn rigidly about it"
 
 
