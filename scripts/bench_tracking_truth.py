@@ -34,8 +34,11 @@ from solver.errors import ArcCalibError  # noqa: E402
 #: "default": the tracker as shipped (the affine patch fit on a window weighted by a 4 px Gaussian,
 #: ``TrackerConfig.window_sigma_px``, with the whole window's check); "affine": on a uniform window;
 #: "gaussian-weighted-check": the Gaussian window judged by the weighted dissimilarity alone
-#: (``max_window_dissimilarity`` off); "quadratic": the quadratic warp on a uniform window.
+#: (``max_window_dissimilarity`` off); "quadratic": the quadratic warp on a uniform window; "cold-lk": LK searching
+#: every pyramid level from rest at each step instead of from the track's last step
+#: (``TrackerConfig.predicted_max_level`` off).
 SETTINGS = {"default": TrackerConfig(), "affine": TrackerConfig(window_sigma_px=0.0),
+            "cold-lk": TrackerConfig(predicted_max_level=None),
             "gaussian-weighted-check": TrackerConfig(max_window_dissimilarity=1e9),
             "quadratic": TrackerConfig(quadratic_warp=True, window_sigma_px=0.0)}
 

@@ -318,6 +318,22 @@ def test_the_whole_window_check_ends_tracks_whose_rim_slid(rng):
     assert np.max(max_errors(unchecked, sweep)) > MAX_TOL_PX
 
 
+def test_lk_starts_from_the_last_step(rng):
+    # A fast sweep (0.8 rad in 12 frames: up to ~11 px per frame at the plate's rim). LK searching one level
+    # from each track's last step keeps every track that the full pyramid from rest keeps, at the same error;
+    # one level from rest (what the crop and levels would be without the prediction) loses the fast ones.
+    delta = smooth_delta(12)
+    sweep = in_plane_sweep(rng, delta)
+    cold = track_keypoints(sweep.frames, delta, replace(SMALL, predicted_max_level=None))
+    warm = track_keypoints(sweep.frames, delta, replace(SMALL, predicted_max_level=0))
+    blind = track_keypoints(sweep.frames, delta, replace(SMALL, max_level=0, predicted_max_level=None))
+    assert len(cold.tracks) >= 50
+    assert len(warm.tracks) >= len(cold.tracks) - 1
+    assert np.max(max_errors(warm, sweep)) < MAX_TOL_PX
+    assert np.median(max_errors(warm, sweep)) < MEDIAN_TOL_PX
+    assert len(blind.tracks) < 0.9 * len(cold.tracks)
+
+
 def test_tracks_feed_the_solver_types(tracked):
     for t in tracked.tracks:
         assert isinstance(t, KeypointTrack)
@@ -605,6 +621,8 @@ def test_moving_mask_rejects_bad_input():
         ({"max_bend_px": 0.0}, "max_bend_px"),
         ({"affine_step_px": 0.0}, "affine_step_px"),
         ({"affine_step_px": float("nan")}, "affine_step_px"),
+        ({"predicted_max_level": -1}, "predicted_max_level"),
+        ({"max_level": 1, "predicted_max_level": 2}, "predicted_max_level"),
     ],
     ids=lambda v: str(v) if isinstance(v, dict) else "",
 )
