@@ -83,7 +83,8 @@ class CalibratorConfig:
         conics_always: run the paper's conic front end on every motion, also where the rigid front end does
             not need it (its fit from the predicted axis was taken: ``CONICS_NOT_RUN``), for its report
             (``MotionReport.conics``; the benchmarks count the motions each front end gives an axis). The
-            estimate is the same either way; it costs about 0.8 s CPU per 25-motion realistic episode.
+            estimate is the same either way; it costs about 0.8 s CPU per 25-motion realistic episode, summed in
+            ``Calibrator.report_seconds``.
         predicted_start: once there is a refined pose, the rigid front end first tries the motion's axis and
             reference ray that the pose predicts (R @ axis_base, R @ point_base + t) as its start, and skips its
             searches when the tracks' own fit from there stays near it (``fit_rigid_axis``'s ``predicted``,
@@ -411,6 +412,7 @@ class Calibrator:
         self._since_batch = 0  # increments since every motion was last solved
         self._from_family = False  # the refined pose descends from a family start no linear start has beaten
         self.relinearized = 0  # updates that solved every motion (for benchmarks)
+        self.report_seconds = 0.0  # s spent on the conic front end for its report alone (``conics_always``)
         self.state = CalibrationState(None, "none", None, None, None, None, False, 0, 0, None,
                                       "no motion yet")
 
@@ -449,7 +451,9 @@ class Calibrator:
             if self.config.rigid_axis is not None and self.config.rigid_always:
                 moving, geometry = self._rigid_front_end(obs, moving, conics, report, axis, point)
                 if not found and self.config.conics_always:  # for the report only: the rigid axis stays
+                    t0 = time.perf_counter()
                     conics()
+                    self.report_seconds += time.perf_counter() - t0
                 elif not found:
                     report.conics = CONICS_NOT_RUN
             else:

@@ -152,6 +152,8 @@ def test_conics_always_reports_the_paper_front_end_on_every_motion_and_changes_n
             runs[always].add_motion(obs)
     lazy, full = runs[False], runs[True]
     assert any(r.conics == CONICS_NOT_RUN for r in lazy.reports)
+    # the report's own time is counted apart (benchmarks leave it out of the solver's)
+    assert lazy.report_seconds == 0.0 and full.report_seconds > 0.0
     np.testing.assert_array_equal(full.state.T_camera_base, lazy.state.T_camera_base)
     assert [r.front_end for r in full.reports] == [r.front_end for r in lazy.reports]
     for k, (obs, r) in enumerate(zip(observations, full.reports, strict=True)):
