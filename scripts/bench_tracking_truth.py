@@ -1,9 +1,11 @@
 """Tracker error against the simulator's truth on rendered episodes: lag, end error, tracks kept.
 
-Runs random-planner episodes (``arc_env.bench.episodes``' scenes and camera poses) and scores every
-motion's tracks against the true projections of the surface points they started on
-(``arc_env.bench.tracking_truth``). Prints per tracker setting the medians over motions and, with
---json PATH, writes {setting: summary} (``tracking_truth.summary``'s keys).
+Runs a random-planner episode (``arc_env.bench.episodes``' scenes and camera poses) once with the default
+tracker, then tracks its rendered sweeps with every setting and scores each motion's tracks against the true
+projections of the surface points they started on (``arc_env.bench.tracking_truth``): all settings see the
+same frames (an episode per setting would not: the random planner's image test reads the estimate, which the
+tracks change). Prints per tracker setting the medians over motions and, with --json PATH, writes
+{setting: summary} (``tracking_truth.summary``'s keys).
 
 Example (about 2 min): python scripts/bench_tracking_truth.py --realism clean --size 1280x720 --motions 8
 """
@@ -19,6 +21,7 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -26,7 +29,7 @@ from arc_env.bench.episodes import EpisodeSpec, make_env  # noqa: E402
 from arc_env.bench.tracking_truth import MotionTruth, motion_truth, summary  # noqa: E402
 from arc_env.robot.library import ROBOT_NAMES  # noqa: E402
 from arc_env.robot.session import SeenMotion  # noqa: E402
-from arc_env.robot.tracking import TrackerConfig  # noqa: E402
+from arc_env.robot.tracking import TrackerConfig, track_keypoints  # noqa: E402
 from arc_env.sim.imaging import APPEARANCES, REALISMS  # noqa: E402
 from planners.random_planner import RandomPlanner  # noqa: E402
 from solver.errors import ArcCalibError  # noqa: E402
@@ -43,20 +46,14 @@ SETTINGS = {"default": TrackerConfig(), "affine": TrackerConfig(window_sigma_px=
             "quadratic": TrackerConfig(quadratic_warp=True, window_sigma_px=0.0)}
 
 
-def run(spec: EpisodeSpec, tracker: TrackerConfig) -> list[MotionTruth]:
-    """Score the tracks of one episode's motions tracked with ``tracker``."""
+def rendered_motions(spec: EpisodeSpec) -> tuple[Any, list[SeenMotion]]:
+    """Run one episode with the default tracker: (its env, still open for scoring, and its seen motions with frames)."""
     env, obs = make_env(spec)
-    env.session.config = replace(env.session.config, tracker=tracker)
-    scored: list[MotionTruth] = []
-
-    def observe(seen: SeenMotion) -> None:
-        if seen.frames is not None:
-            scored.append(motion_truth(env.scene, seen))
-
-    env.session.observer = observe
+    seen: list[SeenMotion] = []
+    env.session.observer = lambda motion: seen.append(motion) if motion.frames is not None else None
     planner = RandomPlanner(env.session, np.random.default_rng(spec.rng_seed))
     try:
-        while len(scored) < spec.motions:
+        while len(seen) < spec.motions:
             try:
                 action = planner.plan(obs)
             except ArcCalibError:
@@ -64,9 +61,16 @@ def run(spec: EpisodeSpec, tracker: TrackerConfig) -> list[MotionTruth]:
             obs, _, _, truncated, info = env.step(action)
             if info["refused"] and truncated:
                 break
-    finally:
+    except BaseException:
         env.close()
-    return scored
+        raise
+    return env, seen
+
+
+def score(scene: Any, seen: list[SeenMotion], tracker: TrackerConfig) -> list[MotionTruth]:  # noqa: ANN401
+    """Track every seen motion's frames with ``tracker`` and score the tracks against the truth."""
+    return [motion_truth(scene, replace(m, tracks=track_keypoints(m.frames, np.asarray(m.deltas), tracker).tracks))
+            for m in seen if m.frames is not None]
 
 
 def _show(value: float | None, fmt: str) -> str:
@@ -88,10 +92,19 @@ def main() -> None:
     width, height = (int(v) for v in args.size.lower().split("x"))
     spec = EpisodeSpec("random", args.pose, args.seed, motions=args.motions, width=width, height=height,
                        realism=args.realism, appearance=args.appearance, robot=args.robot)
+    names = args.settings.split(",")
+    unknown = [n for n in names if n not in SETTINGS]
+    if unknown:
+        parser.error(f"unknown settings {unknown}; valid: {sorted(SETTINGS)}")
     results = {}
+    env, seen = rendered_motions(spec)
     print(f"{'setting':<10} {'motions':>7} {'tracks':>7} {'on links':>8} {'end px':>7} {'<=1px':>6} {'chord':>12}")
-    for name in args.settings.split(","):
-        results[name] = summary(run(spec, SETTINGS[name]))
+    try:
+        scored = {name: score(env.scene, seen, SETTINGS[name]) for name in names}
+    finally:
+        env.close()
+    for name in names:
+        results[name] = summary(scored[name])
         r = results[name]
         chord = None if r["chord_scale_median"] is None else r["chord_scale_median"] * 1e3
         print(f"{name:<10} {r['motions']:>7} {_show(r['tracks_median'], '.0f'):>7} "

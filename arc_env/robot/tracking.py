@@ -81,9 +81,12 @@ class TrackerConfig:
             (``affine_iterations`` 0) always starts from rest (``_lk_predicted``). None -> 1 measured:
             captured sweeps alone on the machine (12 clean 1080p: 14.2 -> 11.7 ms per frame, LK 5.8 -> 3.6
             ms, 2 894 -> 2 928 tracks; 8 realistic 720p: 7.4 -> 5.6 ms, LK 2.6 -> 1.5); against the
-            simulator's truth (``scripts/bench_tracking_truth.py --settings cold-lk,default --motions 6``, Panda
-            pose 0) clean painted 1080p 213 -> 212 tracks, end error 0.25 -> 0.26 px, 78 % within 1 px both;
-            realistic 720p 54 tracks both, 2.84 -> 2.45 px, 13 -> 15 %. Level 0 was as good on the clean
+            simulator's truth on the same frames (``scripts/bench_tracking_truth.py --settings cold-lk,default
+            --motions 6``, Panda pose 0) clean painted 1080p 213 -> 212 tracks, end error 0.25 -> 0.26 px, 78 %
+            within 1 px both; realistic 720p 54 tracks both, median end error 2.84 -> 2.45 px (one motion of six
+            4.11 -> 2.76 px, one 1.40 -> 1.48, the rest the same), 13 -> 15 %; two 8-motion realistic 720p
+            episodes (poses 0, 1) 1.85 -> 1.87 px and 2.78 -> 2.75 px: no change in quality beyond single
+            motions. Level 0 was as good on the clean
             sweeps (11.5 ms, 2 948 tracks) but leaves no room for a joint that speeds up.
         criteria: LK termination ``(type, max_iterations, epsilon_px)`` as ``cv2.TermCriteria``:
             type is a combination of ``cv2.TERM_CRITERIA_COUNT`` and ``cv2.TERM_CRITERIA_EPS``,
