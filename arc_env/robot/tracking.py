@@ -74,7 +74,8 @@ class TrackerConfig:
         win_size_px: side of the LK search window at every pyramid level; pixels, odd, >= 5.
         max_level: coarsest LK pyramid level (0 = no pyramid; each level halves the image); count.
         predicted_max_level: coarsest level for a track that has a last frame-to-frame step: LK starts
-            where that step predicts (the joint turns smoothly, so the prediction errs by a pixel or two)
+            where that step predicts (the joint turns smoothly: LK's result lies a median 0.19 px from the
+            prediction, 99 % within 1.45 px, on a recorded clean 1080p episode; 0.36 / 2.59 px on realistic 720p)
             and searches this many levels, in a crop with a margin of (``win_size_px`` // 2 + 2) *
             2**level instead of 2**``max_level``; tracks without a step (new, found again, the first
             step) search from rest at ``max_level``. None: every track from rest. Plain LK
@@ -86,8 +87,8 @@ class TrackerConfig:
             within 1 px both; realistic 720p 54 tracks both, median end error 2.84 -> 2.45 px (one motion of six
             4.11 -> 2.76 px, one 1.40 -> 1.48, the rest the same), 13 -> 15 %; two 8-motion realistic 720p
             episodes (poses 0, 1) 1.85 -> 1.87 px and 2.78 -> 2.75 px: no change in quality beyond single
-            motions. Level 0 was as good on the clean
-            sweeps (11.5 ms, 2 948 tracks) but leaves no room for a joint that speeds up.
+            motions. Level 0 was as good on the clean sweeps (11.5 ms, 2 948 tracks) but leaves no room for a
+            joint that speeds up.
         criteria: LK termination ``(type, max_iterations, epsilon_px)`` as ``cv2.TermCriteria``:
             type is a combination of ``cv2.TERM_CRITERIA_COUNT`` and ``cv2.TERM_CRITERIA_EPS``,
             epsilon is the update size in pixels below which the iteration stops.
