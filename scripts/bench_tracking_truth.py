@@ -46,25 +46,20 @@ SETTINGS = {"default": TrackerConfig(), "affine": TrackerConfig(window_sigma_px=
             "quadratic": TrackerConfig(quadratic_warp=True, window_sigma_px=0.0)}
 
 
-def rendered_motions(spec: EpisodeSpec) -> tuple[Any, list[SeenMotion]]:
-    """Run one episode with the default tracker: (its env, still open for scoring, and its seen motions with frames)."""
-    env, obs = make_env(spec)
+def rendered_motions(env: Any, obs: Any, spec: EpisodeSpec) -> list[SeenMotion]:  # noqa: ANN401 (sim env)
+    """Run ``spec``'s episode in ``env`` (reset, first observation ``obs``) with its tracker: the seen motions."""
     seen: list[SeenMotion] = []
     env.session.observer = lambda motion: seen.append(motion) if motion.frames is not None else None
     planner = RandomPlanner(env.session, np.random.default_rng(spec.rng_seed))
-    try:
-        while len(seen) < spec.motions:
-            try:
-                action = planner.plan(obs)
-            except ArcCalibError:
-                break
-            obs, _, _, truncated, info = env.step(action)
-            if info["refused"] and truncated:
-                break
-    except BaseException:
-        env.close()
-        raise
-    return env, seen
+    while len(seen) < spec.motions:
+        try:
+            action = planner.plan(obs)
+        except ArcCalibError:
+            break
+        obs, _, _, truncated, info = env.step(action)
+        if info["refused"] and truncated:
+            break
+    return seen
 
 
 def score(scene: Any, seen: list[SeenMotion], tracker: TrackerConfig) -> list[MotionTruth]:  # noqa: ANN401
@@ -97,12 +92,13 @@ def main() -> None:
     if unknown:
         parser.error(f"unknown settings {unknown}; valid: {sorted(SETTINGS)}")
     results = {}
-    env, seen = rendered_motions(spec)
-    print(f"{'setting':<10} {'motions':>7} {'tracks':>7} {'on links':>8} {'end px':>7} {'<=1px':>6} {'chord':>12}")
+    env, obs = make_env(spec)
     try:
+        seen = rendered_motions(env, obs, spec)
         scored = {name: score(env.scene, seen, SETTINGS[name]) for name in names}
     finally:
         env.close()
+    print(f"{'setting':<10} {'motions':>7} {'tracks':>7} {'on links':>8} {'end px':>7} {'<=1px':>6} {'chord':>12}")
     for name in names:
         results[name] = summary(scored[name])
         r = results[name]
