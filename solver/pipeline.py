@@ -50,6 +50,7 @@ from solver.refinement import (
     RefinementResult,
     TrackSet,
     build_track_set,
+    newest_motion_leverage,
     refine,
     refine_increment,
     reprojection_residuals,
@@ -193,6 +194,10 @@ class MotionReport:
             others by the known angles).
         rigid_predicted: the rigid front end's fit came from the start the refined pose predicted, with no
             search (``CalibratorConfig.predicted_start``).
+        leverage: the largest share (0..1) of the refined pose's information it brought in any direction when
+            it was added (``solver.refinement.newest_motion_leverage``); None when it did not inform a refined
+            estimate then. Below ``ConvergenceConfig.min_leverage`` the estimate after it does not enter the
+            convergence window.
     """
 
     index: int
@@ -210,6 +215,7 @@ class MotionReport:
     rigid: str = ""
     n_inconsistent_tracks: int = 0
     rigid_predicted: bool = False
+    leverage: float | None = None
 
 
 @dataclass(frozen=True)
@@ -405,6 +411,7 @@ class Calibrator:
         self._motions: list[_Motion | None] = []
         self._rng = np.random.default_rng(self.config.seed)
         self._monitor = ConvergenceMonitor(self.config.convergence)
+        self._window_motions = 0  # motions taken when an estimate last entered the monitor's window
         self._refined: RefinementResult | None = None
         self._refined_live: list[int] = []  # the motions behind _refined, in its summaries' order
         self._inlier_counts: dict[int, int] = {}  # tracks the bundle adjustment kept, per motion
@@ -555,8 +562,9 @@ class Calibrator:
             T, stage = None, "none"
             if linear is not None:
                 message = f"the linear estimate is not confirmed by the bundle adjustment: {message}"
-        if T is not None:
+        if T is not None and self._enters_window(refined, live):
             self._monitor.push(T)
+            self._window_motions = len(self._motions)
         cov = refined.covariance if refined is not None else None
         std = np.sqrt(np.diag(cov)) if cov is not None else None
         converged = self._monitor.converged and (
@@ -627,6 +635,24 @@ class Calibrator:
         self._refined_live.append(k)
         self._since_batch += 1
         return refined
+
+    def _enters_window(self, refined: RefinementResult | None, live: list[int]) -> bool:
+        """Whether this update's estimate enters the convergence monitor's window.
+
+        Only after a motion taken since the last entry that informs it (``MotionReport.accepted``), and for a
+        refined estimate only when that motion brings at least ``ConvergenceConfig.min_leverage`` of the pose
+        information in some direction (a backend without motion summaries counts every accepted motion).
+        """
+        newest = len(self._motions) - 1
+        if len(self._motions) <= self._window_motions or not self.reports[newest].accepted:
+            return False
+        if refined is None or len(refined.summaries) != len(live) or live[-1] != newest:
+            return True
+        try:
+            self.reports[newest].leverage = newest_motion_leverage(refined.summaries)
+        except InvalidInputError:
+            return True
+        return self.reports[newest].leverage >= self.config.convergence.min_leverage
 
     def _fixes_pose(self, refined: RefinementResult) -> bool:
         """Whether the motions fix the refined pose: every 1-sigma finite and within the ``max_std_*`` bounds.

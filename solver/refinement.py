@@ -811,6 +811,26 @@ def motion_jackknife_covariance(information: FloatArray, gradient: FloatArray, S
     return 0.5 * (out + out.T)
 
 
+def newest_motion_leverage(summaries: Sequence[MotionSummary]) -> float:
+    """The largest share (0..1) of the pose information the last summary's motion carries in any direction.
+
+    The largest eigenvalue of its leverage S^-1/2 H_m S^-1/2 with H_m its information and S the sum of every
+    summary's: 1 when the motion alone fixes some direction of the pose, near 0 when its tracks add next to
+    nothing to what the others say. Its estimate then repeats the one before (``ConvergenceConfig.min_leverage``).
+
+    Raises:
+        InvalidInputError: no summaries, or their total information is not positive definite.
+    """
+    if not summaries:
+        raise InvalidInputError("newest_motion_leverage needs at least one motion summary")
+    H = np.array([m.information for m in summaries], dtype=np.float64)
+    S = H.sum(axis=0)
+    if not np.all(np.isfinite(S)) or np.linalg.eigvalsh(0.5 * (S + S.T))[0] <= 0:
+        raise InvalidInputError("the motions' total information is not positive definite")
+    _, lev, _, _ = _whitened_leverages(H[-1:], np.zeros((1, S.shape[0])), S)
+    return float(np.clip(lev.max(), 0.0, 1.0))
+
+
 def conservative_covariance(model: FloatArray, clustered: FloatArray) -> FloatArray:
     """The smallest covariance (6, 6) at least as large as both, in the model's eigen-directions.
 

@@ -6,12 +6,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+import scipy.linalg
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
 from solver.errors import InsufficientMotionsError, InvalidInputError, TimeOffsetError
 from solver.frames import perturb, pose_difference, pose_errors
 from solver.refinement import (
+    MotionSummary,
     RefinementConfig,
     RefinementResult,
     _BlockOperator,
@@ -24,6 +26,7 @@ from solver.refinement import (
     conservative_covariance,
     motion_jackknife_covariance,
     motion_overdispersion,
+    newest_motion_leverage,
     pose_covariance,
     pose_information,
     refine,
@@ -441,6 +444,33 @@ def test_motion_jackknife_caps_a_motion_that_alone_fixes_a_direction():
     assert wider[-1, -1] > out[-1, -1]  # the closer to 1 the cap, the larger the unverifiable direction's variance
     with pytest.raises(InvalidInputError):
         motion_jackknife_covariance(H, g, H.sum(axis=0), max_leverage=1.0)
+
+
+def _summary(information):
+    n = len(information)
+    return MotionSummary(0, np.eye(4), None, information, np.zeros(n), np.zeros((n, n)), 0.0, 2, 1)
+
+
+def test_newest_motion_leverage_is_the_largest_share_of_variance_it_removes():
+    """Independent construction: the pose variance without the last motion, (S - H_m)^-1, against with it, S^-1;
+    the largest share it removes along any direction is 1 - min_u (u^T S^-1 u) / (u^T (S - H_m)^-1 u)."""
+    rng = np.random.default_rng(13)
+    for n_motions in (2, 5, 20):
+        informations = []
+        for _ in range(n_motions):
+            A = rng.normal(size=(int(rng.integers(8, 30)), 6)) * rng.uniform(0.1, 10.0, size=6)
+            informations.append(A.T @ A)
+        S = sum(informations)
+        ratios = scipy.linalg.eigh(np.linalg.inv(S), np.linalg.inv(S - informations[-1]), eigvals_only=True)
+        assert newest_motion_leverage([_summary(h) for h in informations]) == pytest.approx(1 - ratios.min(), rel=1e-9)
+    # a motion that alone informs a direction carries all of it; a copy of the others' total, half of each
+    others = np.diag([1.0, 2.0, 3.0, 4.0, 5.0, 0.0])
+    assert newest_motion_leverage([_summary(others), _summary(np.eye(6))]) == pytest.approx(1.0)
+    assert newest_motion_leverage([_summary(np.eye(6)), _summary(np.eye(6))]) == pytest.approx(0.5)
+    with pytest.raises(InvalidInputError):
+        newest_motion_leverage([])
+    with pytest.raises(InvalidInputError):
+        newest_motion_leverage([_summary(others)])  # singular in total
 
 
 def test_refinement_config_defaults():
