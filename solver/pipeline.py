@@ -4,7 +4,8 @@ For each new motion: stage-one pruning and its axis and reference plane (``solve
 an update: the robust linear calibration over the motions that passed stage one, pruning those
 inconsistent with it (§V-C-2, ``solver.calibration``); the bundle adjustment over every motion whose
 tracks moved, starting from the previous refined pose or the linear one (``solver.refinement``);
-the convergence monitor over the refined estimates (§V-D). A motion that stage one found ambiguous
+the convergence monitor over the refined estimates (§V-D), each entering its window only after a motion
+that informs it (``ConvergenceConfig.min_leverage``). A motion that stage one found ambiguous
 still informs the bundle adjustment: the rigid-rotation model with a known pose has no ambiguity.
 Before the first refined pose, when there is no linear one to start from (fewer than three axes, no
 consensus) or the adjustment cannot run from it, it starts from the poses that two or more axes allow
@@ -229,7 +230,7 @@ class CalibrationState:
         T_linear: (4, 4) or None: the linear estimate.
         covariance: (6, 6) or None: covariance of (omega rad, tau m) from the refinement.
         std: (6,) or None: square roots of its diagonal.
-        gamma: (6,) or None: the monitor's range over the last h estimates.
+        gamma: (6,) or None: the monitor's range over the last h estimates that entered its window.
         converged: the monitor fired and the uncertainty is within the thresholds.
         n_accepted: motions informing the estimate.
         n_rejected: motions not informing it.
