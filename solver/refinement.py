@@ -112,6 +112,9 @@ class RefinementConfig:
             (random motions, poses 3 and 4 of the benchmark) declared convergence at 3.1-3.4x (3.5 mm off,
             1-sigma norm 1.0-1.1 mm, motions 14-24) and 3.0x (motion 7) their 1-sigma; with it, replayed on the
             same tracks, at most 1.9x and 2.5x.
+        motion_dispersion: under the same test, the covariance is also at least the model's scaled by the
+            motions' dispersion (``summaries_covariance``): the jackknife of M motions has rank M - 1 at most,
+            so up to 6 motions it leaves whole directions to the track sandwich.
     """
 
     cauchy_scale_px: float = 1.0
@@ -128,6 +131,7 @@ class RefinementConfig:
     weight_prior_dof: float = 10.0
     motion_clusters: bool = True
     motion_jackknife: bool = True
+    motion_dispersion: bool = True
 
     def __post_init__(self) -> None:
         if not self.time_offset_bound_s > 0:
@@ -682,8 +686,8 @@ def summaries_prior(summaries: Sequence[MotionSummary], T0: FloatArray, s0: floa
 
 def summaries_covariance(summaries: Sequence[MotionSummary], prior_row: FloatArray | None = None,
                          T0: FloatArray | None = None, s0: float | None = None,
-                         motion_clusters: bool = True, motion_jackknife: bool = True
-                         ) -> tuple[FloatArray, float, FloatArray]:
+                         motion_clusters: bool = True, motion_jackknife: bool = True,
+                         motion_dispersion: bool = True) -> tuple[FloatArray, float, FloatArray]:
     """The pose covariance (n, n) of all ``summaries``, the residual sigma (px) and the covariance before the jackknife.
 
     The model's covariance, enlarged where the track-clustered sandwich is larger and, with
@@ -703,6 +707,11 @@ def summaries_covariance(summaries: Sequence[MotionSummary], prior_row: FloatArr
             (``motion_overdispersion`` above its chi-square quantile at ``JACKKNIFE_TEST_LEVEL``): the
             sandwich's scores are taken at an optimum each motion helped to set, so with few motions, or one
             motion that alone fixes a direction, it is too small.
+        motion_dispersion: with ``motion_clusters``, under the same test also take the model's covariance
+            scaled by the motions' dispersion Q / dof (``motion_overdispersion``: how many times more spread
+            their scores are than independent pixel noise makes them; the quasi-likelihood scale). The
+            jackknife of M motions has rank M - 1 at most and, with few motions, misses whole directions
+            this one covers.
     """
     S = sum(m.information for m in summaries)
     if prior_row is not None:
@@ -724,11 +733,15 @@ def summaries_covariance(summaries: Sequence[MotionSummary], prior_row: FloatArr
             g = g + np.einsum("mij,mj->mi", H, _summary_offsets(summaries, T0, s0))
         C_motion = M / (M - 1) * dof * S_inv @ (g.T @ g) @ S_inv
         cov = conservative_covariance(cov, 0.5 * (C_motion + C_motion.T))
-        if motion_jackknife:
+        if motion_jackknife or motion_dispersion:
             q, q_dof = motion_overdispersion(H, g, S, sigma2)
             if q_dof > 0 and q > chi2.ppf(1.0 - JACKKNIFE_TEST_LEVEL, q_dof):
-                return (conservative_covariance(cov, dof * motion_jackknife_covariance(H, g, S)),
-                        float(np.sqrt(sigma2)), cov)
+                wide = cov
+                if motion_jackknife:
+                    wide = conservative_covariance(wide, dof * motion_jackknife_covariance(H, g, S))
+                if motion_dispersion:
+                    wide = conservative_covariance(wide, q / q_dof * sigma2 * S_inv)
+                return wide, float(np.sqrt(sigma2)), cov
     return cov, float(np.sqrt(sigma2)), cov
 
 
@@ -950,7 +963,8 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     summaries = _motion_summaries(problem, x, fun)
     cov, sigma_fit, sandwich = summaries_covariance(summaries, problem.prior_row(),
                                                      motion_clusters=config.motion_clusters,
-                                                     motion_jackknife=config.motion_jackknife)
+                                                     motion_jackknife=config.motion_jackknife,
+                                                     motion_dispersion=config.motion_dispersion)
     cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
     inliers, all_points = kept_points(tracks.n_tracks, keep, good, pts2)
     return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))),
@@ -1034,7 +1048,8 @@ def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionS
     summaries = tuple(earlier) + new
     cov, sigma_fit, sandwich = summaries_covariance(summaries, problem.prior_row(), T,
                                                      float(x[6]) if estimate else None,
-                                                     config.motion_clusters, config.motion_jackknife)
+                                                     config.motion_clusters, config.motion_jackknife,
+                                                     config.motion_dispersion)
     cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
     inliers, all_points = kept_points(tracks.n_tracks, keep, good, pts2)
     return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))),

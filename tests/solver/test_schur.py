@@ -266,9 +266,11 @@ def test_track_weights_trust_the_quiet_tracks_more():
 def test_track_weights_change_little_when_every_track_is_alike():
     scene = _make_scene(29, **NOISY_SCENE)
     tracks, start = build_track_set(scene.motions, FOCAL), _start_pose(scene.T_true, 30)
-    # the jackknife's data-driven spread (6 motions) is left out: it moves with any reweighting of the same residuals
-    plain = refine(tracks, start, RefinementConfig(track_weights=False, motion_jackknife=False))
-    weighted = refine(tracks, start, RefinementConfig(track_weights=True, motion_jackknife=False))
+    # the jackknife's and the dispersion's data-driven spread (6 motions) are left out: they move with any
+    # reweighting of the same residuals
+    spread_off = {"motion_jackknife": False, "motion_dispersion": False}
+    plain = refine(tracks, start, RefinementConfig(track_weights=False, **spread_off))
+    weighted = refine(tracks, start, RefinementConfig(track_weights=True, **spread_off))
     xi = pose_difference(plain.T_camera_base, weighted.T_camera_base)
     assert np.all(np.abs(xi) < 0.5 * _std(plain.covariance))
     np.testing.assert_allclose(_std(weighted.covariance), _std(plain.covariance), rtol=0.2)
@@ -303,10 +305,15 @@ def test_motion_clusters_widen_the_covariance_when_errors_are_shared_by_a_sweep(
         return xi @ np.linalg.solve(result.covariance, xi)
 
     assert chi2(plain) > 22.46  # the track-level covariance does not hold the truth (chi-square 6, 99.9 %) ...
-    sandwich = refine(tracks, start, replace(loose, motion_jackknife=False))
+    sandwich = refine(tracks, start, replace(loose, motion_jackknife=False, motion_dispersion=False))
     assert chi2(sandwich) < chi2(plain) / 3  # ... the motion-clustered sandwich far less so (seen: 430 -> 92) ...
     assert chi2(sandwich) > 22.46  # ... but from 8 motions it is still too small ...
-    assert chi2(clustered) < 22.46  # ... and with the leave-one-motion-out jackknife it holds it (seen: 10.9)
+    assert chi2(clustered) < 22.46  # ... and with the leave-one-motion-out jackknife it holds it (seen: 5.9) ...
+    jackknifed = refine(tracks, start, replace(loose, motion_dispersion=False))
+    dispersed = refine(tracks, start, replace(loose, motion_jackknife=False))
+    assert chi2(dispersed) < chi2(sandwich) / 2  # ... as the motions' dispersion widens it everywhere (92 -> 33)
+    assert np.all(np.linalg.eigvalsh(clustered.covariance - jackknifed.covariance) > -1e-18)  # never smaller
+    assert chi2(clustered) < chi2(jackknifed)  # seen: 10.9 -> 5.9
     # Whether the motions fix the pose is judged without the jackknife: the result carries that covariance too.
     np.testing.assert_allclose(clustered.sandwich_covariance, sandwich.covariance, rtol=1e-9, atol=1e-18)
     np.testing.assert_allclose(sandwich.sandwich_covariance, sandwich.covariance, rtol=1e-12)
