@@ -37,6 +37,7 @@ reported 1-sigma (``arc_env.bench.episodes.falsely_converged``).
  "runs_with_track_counts", "usable_fraction",
  "axes_conics_per_run_median", "axes_rigid_per_run_median", "runs_with_front_ends",
  "pose_by_5_fraction", "false_convergence_runs", "runs_with_convergence_check",
+ "coverage_95_at_end", "runs_with_coverage_at_end", "coverage_95_updates", "updates_with_coverage", "runs_with_chi2",
  "realism", "appearance", "targets" (realistic runs only): {"usable_every_run", "median_at_25",
  "median_target_25": [rad, m] or null, "pose_by_5", "no_false_convergence"} (true, false, or null: n/a)}.
 ``seconds_split``: median seconds per tracked episode of each part; "report" is the solver's time on the paper's
@@ -46,7 +47,9 @@ what the default settings spend (records stored before this split have 0 and the
 ``usable_runs`` counts the runs
 whose final estimate is usable among ``runs_with_track_counts``; ``usable_fraction`` is their ratio.
 ``pose_by_5_fraction``: runs with an estimate after motion 5 (null with fewer motions).
-``false_convergence_runs``: runs with at least one falsely converged motion. Records stored before a
+``false_convergence_runs``: runs with at least one falsely converged motion. ``coverage_95_at_end``: the share of
+runs whose reported 95 % region held the truth after their last motion, ``coverage_95_updates`` after every update
+(``coverage_figures``; null without a covariance). Records stored before a
 figure existed are left out of it; ``runs_with_track_counts``, ``runs_with_front_ends`` and
 ``runs_with_convergence_check`` count the runs that have it. Without ``--robots``, ``--sizes`` and
 ``--beside-clean`` the document is these figures (the Panda, one size, one look); with any of them it is
@@ -60,6 +63,7 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import chi2
 
 from arc_env.bench.episodes import (
     EpisodeSpec,
@@ -156,6 +160,26 @@ def convergence_figures(runs: list[dict]) -> dict:
     counted = [r for r in runs if "false_convergence" in r]
     return {"false_convergence_runs": sum(r["false_convergence"] > 0 for r in counted),
             "runs_with_convergence_check": len(counted)}
+
+
+#: The 95 % quantile of chi-square with 6 degrees of freedom: an honest covariance's region holds the truth below it.
+CHI2_6_95 = float(chi2.ppf(0.95, 6))
+
+
+def coverage_figures(runs: list[dict]) -> dict:
+    """How often the reported 95 % region held the truth (``arc_env.bench.episodes.truth_chi2``).
+
+    ``coverage_95_at_end``: the fraction of runs whose last update's chi-square is below ``CHI2_6_95`` (of those
+    with a covariance then); ``coverage_95_updates``: the same over every update with a covariance, pooled;
+    None when there is none. Records stored before ``chi2_curve`` existed are left out (``runs_with_chi2``).
+    """
+    counted = [r for r in runs if "chi2_curve" in r]
+    ends = [r["chi2_curve"][-1] for r in counted if r["chi2_curve"] and r["chi2_curve"][-1] is not None]
+    updates = [c for r in counted for c in r["chi2_curve"] if c is not None]
+    return {"coverage_95_at_end": float(np.mean(np.array(ends) <= CHI2_6_95)) if ends else None,
+            "runs_with_coverage_at_end": len(ends),
+            "coverage_95_updates": float(np.mean(np.array(updates) <= CHI2_6_95)) if updates else None,
+            "updates_with_coverage": len(updates), "runs_with_chi2": len(counted)}
 
 
 def median_target(height: int) -> tuple[float, float] | None:
@@ -283,6 +307,7 @@ def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], n_moti
     out.update(front_end_figures(tracked))
     out["pose_by_5_fraction"] = pose_by_fraction(tracked, POSE_BY, n_motions)
     out.update(convergence_figures(tracked))
+    out.update(coverage_figures(tracked))
     out["realism"], out["appearance"] = realism, appearance
     if realism == "realistic":
         out["targets"] = realistic_targets(out, size[1])
@@ -313,6 +338,10 @@ def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], n_moti
     if out["runs_with_convergence_check"]:
         print(f"runs that declared convergence with a true error over 3x their 1-sigma: "
               f"{out['false_convergence_runs']} of {out['runs_with_convergence_check']}")
+    if out["runs_with_coverage_at_end"]:
+        print(f"the 95 % region held the truth at the end in {out['coverage_95_at_end']:.0%} of "
+              f"{out['runs_with_coverage_at_end']} runs, after {out['coverage_95_updates']:.0%} of "
+              f"{out['updates_with_coverage']} updates")
     if "targets" in out:
         print(targets_line(out, n_motions))
     return out

@@ -31,6 +31,8 @@ A record (``dict``):
 * ``std_curve``: per executed motion ``[max rotation 1-sigma rad, max translation 1-sigma m]`` of the
   calibration state after it (the largest of the three entries of ``CalibrationState.std``), ``null``
   while the state has no 1-sigma;
+* ``chi2_curve``: per executed motion the truth's chi-square in the state's covariance (:func:`truth_chi2`: 6
+  degrees of freedom; under 12.59 when the 95 % region holds the truth), ``null`` without a covariance;
 * ``false_convergence``: executed motions after which the state said it had converged while its true
   error was over 3 times its reported 1-sigma (:func:`falsely_converged`: rotation error > 3 x the norm
   of the three rotation 1-sigmas, or translation error > 3 x the norm of the three translation ones).
@@ -60,6 +62,7 @@ from arc_env.robot.session import UsableCriteria, state_unusable_reason
 from arc_env.sim.imaging import APPEARANCES, REALISMS, realism_settings
 from solver.arrays import FloatArray
 from solver.errors import ArcCalibError, InvalidInputError
+from solver.frames import pose_difference
 from solver.pipeline import CalibrationState, CalibratorConfig, MotionReport
 
 #: Selection methods an episode can use: ARC-Calib with either planner, or the marker baseline.
@@ -190,6 +193,23 @@ def falsely_converged(state: CalibrationState, rot_error: float | None, trans_er
     return bool(rot_error > k * np.linalg.norm(std[:3]) or trans_error > k * np.linalg.norm(std[3:]))
 
 
+def truth_chi2(state: CalibrationState, T_true: FloatArray) -> float | None:
+    """xi^T C^-1 xi of the true pose T_true (4, 4) in the state's covariance C, xi = pose_difference(estimate, T_true).
+
+    Chi-square with 6 degrees of freedom when the covariance is honest. None without an estimate or a covariance,
+    or with a covariance that is not positive definite.
+    """
+    if state.T_camera_base is None or state.covariance is None:
+        return None
+    xi = pose_difference(state.T_camera_base, T_true)
+    try:
+        chol = np.linalg.cholesky(np.asarray(state.covariance, dtype=np.float64))
+    except np.linalg.LinAlgError:
+        return None
+    z = np.linalg.solve(chol, xi)
+    return float(z @ z)
+
+
 def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
     """Run one episode and return its record (see the module doc)."""
     if spec.method == "marker":
@@ -230,7 +250,7 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
     record: dict[str, Any] = {"spec": asdict(spec), "commit": code_version(), "curve": [], "planning": [],
                               "frames": 0, "converged_at": None, "refused": 0, "in_collision": 0,
                               "T_camera_base": None, "note": "", "tracks": [], "full_tracks": [],
-                              "std_curve": [], "false_convergence": 0}
+                              "std_curve": [], "chi2_curve": [], "false_convergence": 0}
     env, obs = make_env(spec)
     try:
         planner_cls = RandomPlanner if spec.method == "random" else InformedPlanner
@@ -270,6 +290,7 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
             record["full_tracks"].append(int(info["motion"]["n_full_tracks"]))
             state = session.calibrator.state
             record["std_curve"].append(std_maxima(state.std))
+            record["chi2_curve"].append(truth_chi2(state, env.T_camera_base_true))
             record["false_convergence"] += falsely_converged(state, info["rot_error_rad"], info["trans_error_m"])
             if obs["converged"] and record["converged_at"] is None:
                 record["converged_at"] = len(record["curve"])

@@ -5,7 +5,14 @@ import json
 import numpy as np
 import pytest
 
-from arc_env.bench.episodes import FALSE_CONVERGENCE_SIGMAS, falsely_converged, front_end_axes, std_maxima
+from arc_env.bench.episodes import (
+    FALSE_CONVERGENCE_SIGMAS,
+    falsely_converged,
+    front_end_axes,
+    std_maxima,
+    truth_chi2,
+)
+from solver.frames import perturb
 from solver.pipeline import CalibrationState, MotionReport
 from tests.support.scripts import load_script
 
@@ -54,6 +61,38 @@ def _record(curve, *, usable=True, new_keys=True, conics=3, rigid=1, false=0, po
         record.update(axes_conics=conics, axes_rigid=rigid, false_convergence=false,
                       std_curve=[None] * len(curve))
     return record
+
+
+def test_truth_chi2_is_the_error_in_units_of_the_covariance():
+    """Independent construction: an estimate off by xi along each axis of a diagonal covariance."""
+    rng = np.random.default_rng(3)
+    T_true = perturb(np.eye(4), np.array([0.3, -0.2, 0.1, 0.5, 0.1, 1.2]))
+    sigma = np.array([1e-3, 2e-3, 5e-4, 1e-3, 3e-3, 2e-3])
+    xi = rng.normal(size=6) * sigma * 2.0
+    T_est = perturb(T_true, -xi)  # pose_difference(T_est, T_true) = xi to first order
+    state = CalibrationState(T_est, "refined", None, np.diag(sigma**2), sigma, None, False, 5, 0, 0.2, "")
+    assert truth_chi2(state, T_true) == pytest.approx(float(np.sum((xi / sigma) ** 2)), rel=1e-3)
+    rotated = np.diag(sigma**2)
+    Q = np.linalg.qr(rng.normal(size=(6, 6)))[0]
+    rotated = Q @ rotated @ Q.T  # the same in another basis: chi-square of Q^T xi per axis
+    state = CalibrationState(T_est, "refined", None, rotated, None, None, False, 5, 0, 0.2, "")
+    assert truth_chi2(state, T_true) == pytest.approx(float(np.sum((Q.T @ xi / sigma) ** 2)), rel=1e-3)
+    assert truth_chi2(_state(True, None), T_true) is None  # no covariance
+    singular = CalibrationState(T_est, "refined", None, np.zeros((6, 6)), None, None, False, 5, 0, 0.2, "")
+    assert truth_chi2(singular, T_true) is None
+
+
+def test_coverage_counts_the_runs_whose_region_holds_the_truth(script):
+    runs = [_record([[0.001, 0.001]] * 3) for _ in range(4)]
+    runs[0]["chi2_curve"] = [None, 30.0, 5.0]  # held at the end
+    runs[1]["chi2_curve"] = [2.0, 3.0, 13.0]  # not at the end (12.59)
+    runs[2]["chi2_curve"] = [None, None, None]  # never a covariance
+    assert "chi2_curve" not in runs[3]  # stored before the figure
+    figures = script.coverage_figures(runs)
+    assert figures == {"coverage_95_at_end": 0.5, "runs_with_coverage_at_end": 2,
+                       "coverage_95_updates": pytest.approx(3 / 5), "updates_with_coverage": 5, "runs_with_chi2": 3}
+    assert script.coverage_figures(runs[2:])["coverage_95_at_end"] is None
+    assert script.CHI2_6_95 == pytest.approx(12.592, abs=1e-3)
 
 
 def test_figures_leave_out_old_records(script):

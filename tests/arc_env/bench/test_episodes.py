@@ -63,6 +63,9 @@ def test_a_run_is_recorded_and_stored(stored):
     assert record["seconds"]["report"] >= 0.0 and record["seconds"]["solver"] > 0.0
     assert len(record["std_curve"]) == SPEC.motions and record["false_convergence"] == 0
     assert all(s is None or (len(s) == 2 and min(s) > 0) for s in record["std_curve"])
+    # a chi-square wherever there is a 1-sigma (the same covariance), and only there
+    assert [c is None for c in record["chi2_curve"]] == [s is None for s in record["std_curve"]]
+    assert any(c is not None for c in record["chi2_curve"]) and all(c is None or c >= 0 for c in record["chi2_curve"])
     # Each motion with an axis got it from the rigid front end or the conics (or both gave one).
     assert record["axes_rigid"] <= record["axes"] <= record["axes_conics"] + record["axes_rigid"]
     assert record["axes"] <= SPEC.motions
