@@ -197,8 +197,8 @@ class MotionReport:
             search (``CalibratorConfig.predicted_start``).
         leverage: the largest share (0..1) of the refined pose's information it brought in any direction when
             it was added (``solver.refinement.newest_motion_leverage``); None when it did not inform a refined
-            estimate then. Below ``ConvergenceConfig.min_leverage`` the estimate after it does not enter the
-            convergence window.
+            estimate then or the backend gave no motion summaries. Below ``ConvergenceConfig.min_leverage`` the
+            estimate after it does not enter the convergence window.
     """
 
     index: int
