@@ -1082,14 +1082,26 @@ class _BlockOperator:
         return (self.blocks[:, :, :n] @ v[:n] + np.einsum("pki,pi->pk", self.blocks[:, :, n:], q)).ravel()
 
     def damped_solution(self, f: FloatArray, damp: float) -> FloatArray:
-        """Argmin |J x - f|^2 + damp^2 |x|^2 (n + 3T,), exactly: the normal equations through the Schur complement."""
+        """Argmin |J x - f|^2 + damp^2 |x|^2 (n + 3T,), exactly: the normal equations through the Schur complement.
+
+        Without damping a J that leaves a direction unseen (a point or pose direction no observation moves) makes
+        the normal equations singular: then a least-squares solution through pseudo-inverses (as LSMR, which
+        scipy's TRF uses here, would give one) instead of numpy's "Singular matrix".
+        """
         n = self.n
         U, W, V, gp, gx = normal_blocks(self.blocks, f.reshape(-1, 2), np.ones(self.blocks.shape[0]), self.starts)
         d2 = damp * damp
-        V_inv = np.linalg.inv(V + d2 * np.eye(3))
+        try:
+            V_inv = np.linalg.inv(V + d2 * np.eye(3))
+        except np.linalg.LinAlgError:
+            V_inv = np.linalg.pinv(V + d2 * np.eye(3), hermitian=True)
         WV = np.matmul(W, V_inv)  # (T, n, 3)
         S = U + d2 * np.eye(n) - np.einsum("tij,tkj->ik", WV, W)
-        xp = np.linalg.solve(S, gp - np.einsum("tij,tj->i", WV, gx))
+        rhs = gp - np.einsum("tij,tj->i", WV, gx)
+        try:
+            xp = np.linalg.solve(S, rhs)
+        except np.linalg.LinAlgError:
+            xp = np.linalg.lstsq(S, rhs, rcond=None)[0]
         xq = np.matmul(V_inv, (gx - np.einsum("tji,j->ti", W, xp))[:, :, None])[:, :, 0]
         return np.concatenate([xp, xq.ravel()])
 

@@ -660,6 +660,29 @@ def test_the_block_operator_solves_the_damped_least_squares_problem():
         np.testing.assert_allclose(op.damped_solution(f, damp), expected, rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize("unseen", ["pose", "point"])
+def test_the_block_operator_solves_a_rank_deficient_problem_without_damping(unseen):
+    """A pose direction, or one track's point, that no observation moves: no "Singular matrix", a least-squares
+    solution (its residual is numpy's least-squares residual of the dense J)."""
+    rng = np.random.default_rng(22)
+    n_obs = np.array([3, 2, 4, 2])
+    track = np.repeat(np.arange(n_obs.size), n_obs)
+    blocks = rng.normal(size=(track.size, 2, 9))
+    if unseen == "pose":
+        blocks[:, :, 2] = 0.0  # the third pose parameter moves nothing
+    else:
+        blocks[track == 1, :, 6:] = 0.0  # track 1's point moves nothing
+    f = rng.normal(size=2 * track.size)
+    J = np.zeros((2 * track.size, 6 + 3 * n_obs.size))
+    for p, t in enumerate(track):
+        J[2 * p:2 * p + 2, :6] = blocks[p, :, :6]
+        J[2 * p:2 * p + 2, 6 + 3 * t:9 + 3 * t] = blocks[p, :, 6:]
+    x = _BlockOperator(blocks, track, track_starts(track)).damped_solution(f, 0.0)
+    best = np.linalg.lstsq(J, f, rcond=None)[0]
+    assert np.all(np.isfinite(x))
+    assert np.linalg.norm(J @ x - f) == pytest.approx(np.linalg.norm(J @ best - f), rel=1e-9)
+
+
 @pytest.mark.parametrize("seed", [16, 17, 18])
 @pytest.mark.parametrize("max_nfev", [5, 10, 50])
 def test_the_subspace_pass_follows_scipys_trf(seed, max_nfev):
