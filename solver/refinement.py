@@ -95,24 +95,13 @@ class RefinementConfig:
             within 1.5 px of the point they started on (their residual RMS at the estimate 0.31 px, median),
             618 slide by more than 3 px (1.51 px) and 264 start off the moving links; the sliding majority
             sets the common sigma and the outlier bound, and biases the depth by millimetres (4.80 mm off;
-            0.92 mm from the 197 alone). Weighted, the same tracks give 3.47 mm. On the captured tracks of
-            nine realistic episodes replayed at 25 motions (unweighted -> weighted; rad / mm): as-shipped
-            Panda 1080p poses 0-3 2.27e-3 / 0.72 -> 1.96e-3 / 0.26, 1.21e-3 / 2.23 -> 4.15e-4 / 1.04,
-            1.01e-3 / 4.75 -> 1.68e-3 / 8.03, 1.92e-3 / 4.80 -> 1.40e-3 / 3.47; xArm 6 1080p poses 1 and 6
-            1.14e-3 / 1.17 -> 7.47e-4 / 0.72, 1.63e-3 / 0.47 -> 1.22e-3 / 0.26; Panda and iiwa 720p pose 0
-            1.84e-3 / 1.91 -> 1.31e-3 / 5.75, 2.92e-3 / 9.01 -> 2.62e-3 / 5.85; clean painted iiwa 1080p
-            pose 6 2.89e-4 / 0.08 -> 4.29e-5 / 0.02. Unweighted, two of them declared convergence while over
-            3x their 1-sigma (as-shipped pose 3 at motions 14-20, the painted iiwa at 9); weighted, none. The
-            covariance is a little less honest there (the truth's chi-square at 25 motions above its 95 % point
-            on 3 of the 9 against 2; synthetic all-track episodes' 95 % regions 0.932 against 0.973). Still off
-            by default: rendered with it on (at 1e65389, ``scripts/bench_episode.py --realism realistic
-            --appearance as_shipped --robots panda --sizes 1920x1080 --poses 4 --seeds 1 --beside-clean``) the
-            as-shipped runs were more accurate (1.39e-3 rad / 3.10 mm at 25 motions against 1.57e-3 / 3.49)
-            and all four usable, but one of them usable while 5.98 mm off and the 95 % region held the truth
-            at the end of 1 of 4 runs (3 of 4 unweighted); the clean painted runs beside them (5.70e-5 rad /
-            0.23 mm against 1.86e-4 / 0.30) declared convergence while over 3x off in 2 of 4 (0 of 4): the
-            weights come from the residuals they weigh, and the errors they leave are shared by every track
-            (a bias no sandwich sees). To turn on once the covariance bounds that.
+            0.92 mm from the 197 alone). Weighted, the same tracks give 3.47 mm. But the weights come from
+            the residuals they weigh and leave errors shared by every track (a bias no sandwich sees): with
+            the weighted covariance alone, rendered as-shipped Panda runs (at 1e65389) were flagged usable
+            5.98 mm off and clean painted ones declared convergence over 3x off in 2 of 4. So the reported
+            covariance is at least the unweighted fit's plus the two estimates' difference
+            (``weighted_covariance_bound``, from each motion's unweighted twin summary): the weights may make
+            the estimate better, never its claimed precision. Replays of captured episodes are in the README.
         weight_prior_dof: see ``track_weights``.
         motion_clusters: the covariance is also at least the motion-clustered sandwich
             (``summaries_covariance``): errors shared by a sweep bias the pose beyond what the track-clustered
@@ -141,7 +130,7 @@ class RefinementConfig:
     estimate_time_offset: bool | None = None
     time_offset_bound_s: float = 0.1
     backend: Backend = "schur"
-    track_weights: bool = False
+    track_weights: bool = True
     weight_prior_dof: float = 10.0
     motion_clusters: bool = True
     motion_jackknife: bool = True
@@ -441,6 +430,8 @@ class MotionSummary:
         rss: px^2, the sum of its squared residuals there.
         n_residuals: how many residuals (2 per observation).
         n_tracks: its kept tracks.
+        unweighted: with per-track weights (``RefinementConfig.track_weights``), the same motion's summary
+            at the same point without them (what ``weighted_covariance_bound`` reads); None unweighted.
     """
 
     motion: int
@@ -452,6 +443,50 @@ class MotionSummary:
     rss: float
     n_residuals: int
     n_tracks: int
+    unweighted: MotionSummary | None = None
+
+
+def _with_unweighted(problem: _Problem, x: FloatArray, fun: FloatArray, raw: FloatArray,
+                     scale: FloatArray | None) -> tuple[MotionSummary, ...]:
+    """The motions' summaries at x: ``_motion_summaries`` of the residuals ``fun`` (2P,) px.
+
+    When ``scale`` (P,) weighted them, each carries its unweighted twin from the raw residuals ``raw`` (2P,) px.
+    """
+    weighted = _motion_summaries(problem, x, fun)
+    if scale is None:
+        return weighted
+    plain = _motion_summaries(_Problem(problem.tracks, problem.T0, problem.prior_weight), x, raw)
+    return tuple(replace(w, unweighted=u) for w, u in zip(weighted, plain, strict=True))
+
+
+def weighted_covariance_bound(cov: FloatArray, summaries: Sequence[MotionSummary], prior_row: FloatArray | None,
+                              T0: FloatArray | None, s0: float | None, config: RefinementConfig) -> FloatArray:
+    """The covariance (n, n) of a weighted estimate, at least its unweighted twin's (``track_weights``).
+
+    ``cov`` is the weighted adjustment's (``summaries_covariance`` of ``summaries``, about (T0, s0), or about
+    their own linearization point when T0 is None). The same tracks unweighted (each summary's
+    ``unweighted``) have their optimum a Gauss-Newton step d (n,) away; the bound is their covariance there
+    (``summaries_covariance``, the same settings) plus d d^T, the two estimates' difference: where the weights
+    and the plain fit disagree, that much is unknown. Returns ``cov`` when the summaries carry no unweighted
+    twins (weights off).
+    """
+    if not summaries or all(m.unweighted is None for m in summaries):
+        return cov
+    plain = [m.unweighted if m.unweighted is not None else m for m in summaries]
+    T_a = plain[0].T_lin if T0 is None else T0
+    s_a = plain[0].time_offset_lin if T0 is None else s0
+    H = np.array([m.information for m in plain])
+    g = np.array([m.gradient for m in plain]) + np.einsum("mij,mj->mi", H, _summary_offsets(plain, T_a, s_a))
+    S, G = H.sum(axis=0), g.sum(axis=0)
+    if prior_row is not None:  # the time offset's prior residual prior_row @ (0, .., s)
+        S = S + np.outer(prior_row, prior_row)
+        G = G + prior_row * (prior_row[-1] * (s_a or 0.0))
+    d = -np.linalg.lstsq(S, G, rcond=None)[0]
+    T_u = perturb(T_a, d[:6])
+    s_u = None if s_a is None else s_a + float(d[6])
+    bound, _, _ = summaries_covariance(plain, prior_row, T_u, s_u, config.motion_clusters, config.motion_jackknife,
+                                       config.motion_dispersion)
+    return conservative_covariance(cov, bound + np.outer(d, d))
 
 
 class _Whitened:
@@ -974,11 +1009,12 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
                                       backend=config.backend, scale=scale)
     fun = sol.fun[:2 * sub2.uv.shape[0]]  # the observations' residuals (the prior's is last, with s)
     raw = fun if scale is None else (fun.reshape(-1, 2) / scale[:, None]).ravel()  # px, unweighted
-    summaries = _motion_summaries(problem, x, fun)
+    summaries = _with_unweighted(problem, x, fun, raw, scale)
     cov, sigma_fit, sandwich = summaries_covariance(summaries, problem.prior_row(),
                                                      motion_clusters=config.motion_clusters,
                                                      motion_jackknife=config.motion_jackknife,
                                                      motion_dispersion=config.motion_dispersion)
+    cov = weighted_covariance_bound(cov, summaries, problem.prior_row(), None, None, config)
     cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
     inliers, all_points = kept_points(tracks.n_tracks, keep, good, pts2)
     return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))),
@@ -1058,12 +1094,12 @@ def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionS
                                       scale=scale, prior=prior)
     fun = sol.fun[:2 * sub2.uv.shape[0]]
     raw = fun if scale is None else (fun.reshape(-1, 2) / scale[:, None]).ravel()
-    new = _motion_summaries(problem, x, fun)
-    summaries = tuple(earlier) + new
-    cov, sigma_fit, sandwich = summaries_covariance(summaries, problem.prior_row(), T,
-                                                     float(x[6]) if estimate else None,
+    summaries = tuple(earlier) + _with_unweighted(problem, x, fun, raw, scale)
+    s_now = float(x[6]) if estimate else None
+    cov, sigma_fit, sandwich = summaries_covariance(summaries, problem.prior_row(), T, s_now,
                                                      config.motion_clusters, config.motion_jackknife,
                                                      config.motion_dispersion)
+    cov = weighted_covariance_bound(cov, summaries, problem.prior_row(), T, s_now, config)
     cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
     inliers, all_points = kept_points(tracks.n_tracks, keep, good, pts2)
     return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))),

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.linalg import eigh
 
 from solver import PANDA, Calibrator, SyntheticConfig, SyntheticScene, d415_intrinsics, sample_camera_pose
 from solver.frames import perturb, pose_difference, pose_errors
@@ -18,6 +19,7 @@ from solver.refinement import (
     refine_increment,
     start_points,
     summaries_covariance,
+    weighted_covariance_bound,
 )
 from solver.schur import PosePrior, normal_blocks, pose_step_sigmas, solve_schur, track_starts
 from tests.solver.scene import FOCAL
@@ -38,6 +40,11 @@ STD_RTOL = 0.05
 
 def _std(cov: np.ndarray) -> np.ndarray:
     return np.sqrt(np.diag(cov))
+
+
+def _largest_ratio(a: np.ndarray, b: np.ndarray) -> float:
+    """The largest v^T a v / v^T b v over directions v: how much larger covariance a is than b somewhere."""
+    return float(eigh(a, b, eigvals_only=True).max())
 
 
 def test_normal_blocks_are_the_dense_weighted_normal_equations():
@@ -179,11 +186,31 @@ def test_an_increment_equals_the_batch_adjustment(seed):
     assert np.all(np.abs(xi) < AGREEMENT_SIGMA * _std(batch.covariance))
     np.testing.assert_allclose(_std(inc.covariance), _std(batch.covariance), rtol=STD_RTOL)
     assert len(inc.summaries) == 7 and inc.track_inliers.shape == (new.n_tracks,)
-    # the summaries of the batch adjustment give its own covariance
-    np.testing.assert_allclose(summaries_covariance(batch.summaries)[0], batch.covariance, rtol=1e-9)
+    # the summaries of the batch adjustment give its own covariance (with the weights, bounded by their twins)
+    own = summaries_covariance(batch.summaries)[0]
+    np.testing.assert_allclose(weighted_covariance_bound(own, batch.summaries, None, None, None, RefinementConfig()),
+                               batch.covariance, rtol=1e-9)
     # the new motion's information changed the estimate: it is not the old one carried over
     assert np.any(np.abs(pose_difference(first.T_camera_base, batch.T_camera_base)) > AGREEMENT_SIGMA
                   * _std(batch.covariance))
+
+
+def test_a_weighted_increment_keeps_the_unweighted_bound_and_equals_the_batch_adjustment():
+    """Per-track weights on: the increment carries every motion's unweighted twin and agrees with the batch."""
+    scene = _make_scene(15, n_motions=7, n_tracks=6, n_frames=30, noise_px=0.5)
+    old, new, every = _split(scene.motions, 6)
+    config = RefinementConfig(track_weights=True)
+    first = refine(old, _start_pose(scene.T_true, 16), config)
+    batch = refine(every, first.T_camera_base, config)
+    inc = refine_increment(new, first.T_camera_base, first.summaries, first.robust_sigma_px, config)
+    assert len(inc.summaries) == 7 and all(m.unweighted is not None for m in inc.summaries)
+    xi = pose_difference(batch.T_camera_base, inc.T_camera_base)
+    assert np.all(np.abs(xi) < AGREEMENT_SIGMA * _std(batch.covariance))
+    np.testing.assert_allclose(_std(inc.covariance), _std(batch.covariance), rtol=STD_RTOL)
+    own, _, _ = summaries_covariance(inc.summaries, None, inc.T_camera_base)
+    assert np.linalg.eigvalsh(inc.covariance - own).min() > -1e-9 * np.abs(own).max()
+    plain = refine(every, first.T_camera_base, replace(config, track_weights=False))
+    assert _largest_ratio(plain.covariance, inc.covariance) < 1.1  # twins linearized where last solved
 
 
 def test_an_increment_with_the_time_offset_equals_the_batch_adjustment():
@@ -240,8 +267,8 @@ def test_the_calibrator_updates_incrementally_and_agrees_with_solving_every_moti
                                                                      abs=2)
 
 
-def test_track_weights_trust_the_quiet_tracks_more():
-    """Half the tracks 6x noisier than the others: weighting by each track's noise shrinks the covariance."""
+def test_track_weights_trust_the_quiet_tracks_more_and_report_at_least_the_unweighted_covariance():
+    """Half the tracks 6x noisier than the others: the weighted fit is sharper, its reported covariance is bounded."""
     scene = _make_scene(25, n_motions=6, n_tracks=8, n_frames=30, noise_px=0.0)
     rng = np.random.default_rng(26)
     noisy = []
@@ -252,14 +279,21 @@ def test_track_weights_trust_the_quiet_tracks_more():
     start = _start_pose(scene.T_true, 27)
     config = RefinementConfig(outlier_px=5.0, outlier_sigmas=10.0, track_weights=False)  # keep the noisy tracks
     plain = refine(tracks, start, config)
-    weighted = refine(tracks, start, RefinementConfig(outlier_px=5.0, outlier_sigmas=10.0, track_weights=True))
+    weighted = refine(tracks, start, replace(config, track_weights=True))
     assert weighted.track_inliers.all() and plain.track_inliers.all()
-    # the weighted covariance is smaller in every direction (its information is larger) ...
-    assert np.all(np.linalg.eigvalsh(plain.covariance - weighted.covariance) > 0)
-    assert np.prod(_std(weighted.covariance)) < 0.5 * np.prod(_std(plain.covariance))
-    # ... and still holds the truth (chi-square with 6 dof, 99.9 %)
+    assert all(m.unweighted is not None for m in weighted.summaries)
+    assert all(m.unweighted is None for m in plain.summaries)
+    # the weights' own covariance is smaller in every direction (its information is larger) ...
+    own, _, _ = summaries_covariance(weighted.summaries)
+    assert np.all(np.linalg.eigvalsh(plain.covariance - own) > 0)
+    assert np.prod(_std(own)) < 0.5 * np.prod(_std(plain.covariance))
+    # ... and holds the truth (chi-square with 6 dof, 99.9 %) ...
     xi = pose_difference(weighted.T_camera_base, scene.T_true)
-    assert xi @ np.linalg.solve(weighted.covariance, xi) < 22.46
+    assert xi @ np.linalg.solve(own, xi) < 22.46
+    # ... but the reported one is at least that and, within the one Gauss-Newton step to the unweighted
+    # optimum, the unweighted fit's: no direction is claimed better known than the plain fit knows it
+    assert np.linalg.eigvalsh(weighted.covariance - own).min() > -1e-9 * np.abs(own).max()
+    assert _largest_ratio(plain.covariance, weighted.covariance) < 1.1  # a separate robust pass and optimum
     assert weighted.rms_px == pytest.approx(plain.rms_px, rel=0.1)  # reported in px, unweighted
 
 
@@ -293,7 +327,8 @@ def test_motion_clusters_widen_the_covariance_when_errors_are_shared_by_a_sweep(
         shift = rng.normal(0.0, 1.0, 2) / FOCAL  # one offset for every track of this motion
         shifted.append((axis, pivot, [(uv + shift, d) for uv, d in tracks]))
     tracks, start = build_track_set(shifted, FOCAL), _start_pose(scene.T_true, 37)
-    loose = RefinementConfig(outlier_px=5.0, outlier_sigmas=10.0)  # the shifted tracks are not outliers
+    # the shifted tracks are not outliers; unweighted, to see the clusters alone
+    loose = RefinementConfig(outlier_px=5.0, outlier_sigmas=10.0, track_weights=False)
     plain = refine(tracks, start, replace(loose, motion_clusters=False))
     clustered = refine(tracks, start, loose)
     np.testing.assert_allclose(clustered.T_camera_base, plain.T_camera_base, atol=1e-12)  # the estimate is the same
