@@ -452,10 +452,12 @@ def _with_unweighted(problem: _Problem, x: FloatArray, fun: FloatArray, raw: Flo
 
     When ``scale`` (P,) weighted them, each carries its unweighted twin from the raw residuals ``raw`` (2P,) px.
     """
-    weighted = _motion_summaries(problem, x, fun)
     if scale is None:
-        return weighted
-    plain = _motion_summaries(_Problem(problem.tracks, problem.T0, problem.prior_weight), x, raw)
+        return _motion_summaries(problem, x, fun)
+    plain_problem = _Problem(problem.tracks, problem.T0, problem.prior_weight)
+    blocks = plain_problem.jacobian_blocks(x)  # the weighted problem's are these times the scale
+    weighted = _motion_summaries(problem, x, fun, blocks * scale[:, None, None])
+    plain = _motion_summaries(plain_problem, x, raw, blocks)
     return tuple(replace(w, unweighted=u) for w, u in zip(weighted, plain, strict=True))
 
 
@@ -475,9 +477,8 @@ def weighted_covariance_bound(cov: FloatArray, summaries: Sequence[MotionSummary
     plain = [m.unweighted if m.unweighted is not None else m for m in summaries]
     T_a = plain[0].T_lin if T0 is None else T0
     s_a = plain[0].time_offset_lin if T0 is None else s0
-    H = np.array([m.information for m in plain])
-    g = np.array([m.gradient for m in plain]) + np.einsum("mij,mj->mi", H, _summary_offsets(plain, T_a, s_a))
-    S, G = H.sum(axis=0), g.sum(axis=0)
+    quadratic = summaries_prior(plain, T_a, s_a)
+    S, G = quadratic.information, quadratic.gradient
     if prior_row is not None:  # the time offset's prior residual prior_row @ (0, .., s)
         S = S + np.outer(prior_row, prior_row)
         G = G + prior_row * (prior_row[-1] * (s_a or 0.0))
@@ -680,16 +681,18 @@ def _pose_covariances(problem: _Problem, x: FloatArray, sigma2: float,
     return sigma2 * S_inv, 0.5 * (C + C.T)
 
 
-def _motion_summaries(problem: _Problem, x: FloatArray, residuals: FloatArray) -> tuple[MotionSummary, ...]:
+def _motion_summaries(problem: _Problem, x: FloatArray, residuals: FloatArray,
+                      blocks: FloatArray | None = None) -> tuple[MotionSummary, ...]:
     """Each motion's ``MotionSummary`` at the optimum x (the time offset's prior row left out).
 
-    ``residuals``: (2P,) float64, px, the observations' residuals at x.
+    ``residuals``: (2P,) float64, px, the observations' residuals at x; ``blocks``: the problem's
+    ``jacobian_blocks`` at x when already computed.
     """
     n = problem.n_pose
     tracks = problem.tracks
     r = residuals.reshape(-1, 2)
-    U, W, V, gp, gx = normal_blocks(problem.jacobian_blocks(x), r, np.ones(r.shape[0]), track_starts(tracks.track),
-                                    per_track_pose=True)
+    blocks = problem.jacobian_blocks(x) if blocks is None else blocks
+    U, W, V, gp, gx = normal_blocks(blocks, r, np.ones(r.shape[0]), track_starts(tracks.track), per_track_pose=True)
     WVinv = np.matmul(W, np.linalg.inv(V + 1e-12 * np.eye(3)))
     g = gp - np.matmul(WVinv, gx[:, :, None])[:, :, 0]  # (T, n): each track's score, its point marginalized
     info = U - np.matmul(WVinv, W.transpose(0, 2, 1))  # (T, n, n)
@@ -1010,11 +1013,11 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     fun = sol.fun[:2 * sub2.uv.shape[0]]  # the observations' residuals (the prior's is last, with s)
     raw = fun if scale is None else (fun.reshape(-1, 2) / scale[:, None]).ravel()  # px, unweighted
     summaries = _with_unweighted(problem, x, fun, raw, scale)
-    cov, sigma_fit, sandwich = summaries_covariance(summaries, problem.prior_row(),
-                                                     motion_clusters=config.motion_clusters,
+    prior_row = problem.prior_row()
+    cov, sigma_fit, sandwich = summaries_covariance(summaries, prior_row, motion_clusters=config.motion_clusters,
                                                      motion_jackknife=config.motion_jackknife,
                                                      motion_dispersion=config.motion_dispersion)
-    cov = weighted_covariance_bound(cov, summaries, problem.prior_row(), None, None, config)
+    cov = weighted_covariance_bound(cov, summaries, prior_row, None, None, config)
     cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
     inliers, all_points = kept_points(tracks.n_tracks, keep, good, pts2)
     return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))),
@@ -1096,10 +1099,10 @@ def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionS
     raw = fun if scale is None else (fun.reshape(-1, 2) / scale[:, None]).ravel()
     summaries = tuple(earlier) + _with_unweighted(problem, x, fun, raw, scale)
     s_now = float(x[6]) if estimate else None
-    cov, sigma_fit, sandwich = summaries_covariance(summaries, problem.prior_row(), T, s_now,
-                                                     config.motion_clusters, config.motion_jackknife,
-                                                     config.motion_dispersion)
-    cov = weighted_covariance_bound(cov, summaries, problem.prior_row(), T, s_now, config)
+    prior_row = problem.prior_row()
+    cov, sigma_fit, sandwich = summaries_covariance(summaries, prior_row, T, s_now, config.motion_clusters,
+                                                     config.motion_jackknife, config.motion_dispersion)
+    cov = weighted_covariance_bound(cov, summaries, prior_row, T, s_now, config)
     cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
     inliers, all_points = kept_points(tracks.n_tracks, keep, good, pts2)
     return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))),
