@@ -487,7 +487,38 @@ def weighted_covariance_bound(cov: FloatArray, summaries: Sequence[MotionSummary
     s_u = None if s_a is None else s_a + float(d[6])
     bound, _, _ = summaries_covariance(plain, prior_row, T_u, s_u, config.motion_clusters, config.motion_jackknife,
                                        config.motion_dispersion)
-    return conservative_covariance(cov, bound + np.outer(d, d))
+    if weights_disagree(d, bound, cov):
+        bound = bound + np.outer(d, d)
+    return conservative_covariance(cov, bound)
+
+
+def weights_disagree(d: FloatArray, plain: FloatArray, weighted: FloatArray) -> bool:
+    """Whether the weighted and the plain estimate, d (n,) apart, differ more than their noise makes them.
+
+    A Hausman test: when every track's weight is right, both estimates are unbiased and the weighted one
+    the more precise, so their difference has covariance ``plain`` - ``weighted`` ((n, n) each) and
+    d^T (plain - weighted)^+ d is chi-square with its rank's degrees of freedom. Above the quantile at
+    ``HAUSMAN_TEST_LEVEL`` the weights (or the plain fit) are biased by errors the residuals do not show,
+    and the difference itself is added to the bound. The pseudo-inverse is taken in ``plain``'s whitened
+    coordinates, over the directions where the weights gain more than ``HAUSMAN_MIN_GAIN`` of the variance;
+    elsewhere the two estimates should agree to within the plain one's own noise times that gain's root.
+    """
+    L = np.linalg.cholesky(plain + 1e-300 * np.eye(len(d)))
+    Li = np.linalg.inv(L)
+    gain, V = np.linalg.eigh(np.eye(len(d)) - Li @ weighted @ Li.T)  # 1 - weighted/plain per direction
+    z = V.T @ (Li @ d)  # d in plain's whitened coordinates, along the gain's directions
+    keep = gain > HAUSMAN_MIN_GAIN
+    stat = float(np.sum(z[keep] ** 2 / gain[keep]) + np.sum(z[~keep] ** 2) / HAUSMAN_MIN_GAIN)
+    return stat > chi2.ppf(1.0 - HAUSMAN_TEST_LEVEL, len(d))
+
+
+#: ``weights_disagree``'s test level: the plain-fit difference d d^T is added to a weighted covariance only where the
+#: two estimates differ beyond this quantile (seen: with d d^T always added, synthetic all-track episodes' 95 % regions
+#: held the truth 74 times in 74, too wide).
+HAUSMAN_TEST_LEVEL = 0.01
+
+#: ``weights_disagree``'s smallest gain in variance (1 - weighted / plain, whitened) taken as a direction of its own.
+HAUSMAN_MIN_GAIN = 0.01
 
 
 class _Whitened:

@@ -20,6 +20,7 @@ from solver.refinement import (
     start_points,
     summaries_covariance,
     weighted_covariance_bound,
+    weights_disagree,
 )
 from solver.schur import PosePrior, normal_blocks, pose_step_sigmas, solve_schur, track_starts
 from tests.solver.scene import FOCAL
@@ -295,6 +296,38 @@ def test_track_weights_trust_the_quiet_tracks_more_and_report_at_least_the_unwei
     assert np.linalg.eigvalsh(weighted.covariance - own).min() > -1e-9 * np.abs(own).max()
     assert _largest_ratio(plain.covariance, weighted.covariance) < 1.1  # a separate robust pass and optimum
     assert weighted.rms_px == pytest.approx(plain.rms_px, rel=0.1)  # reported in px, unweighted
+
+
+def _plain_and_weighted_fits(rng: np.random.Generator, bias: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A linear model y = A x + e, half its rows 6x noisier: (d, plain cov, weighted cov), d = OLS - WLS.
+
+    ``bias`` is added to every noisy row in proportion to its first regressor: an error their residuals
+    cannot show (the fit absorbs it), shared by those rows, which pulls the two estimates apart.
+    """
+    n, p = 200, 6
+    A = rng.normal(size=(n, p))
+    sigma = np.where(np.arange(n) % 2 == 1, 1.8, 0.3)
+    y = rng.normal(0.0, sigma) + bias * (sigma > 1.0) * A[:, 0]
+    AtA_inv = np.linalg.inv(A.T @ A)
+    plain_cov = AtA_inv @ (A.T * sigma**2) @ A @ AtA_inv
+    weighted_cov = np.linalg.inv((A.T / sigma**2) @ A)
+    x_plain = AtA_inv @ A.T @ y
+    x_weighted = weighted_cov @ ((A.T / sigma**2) @ y)
+    return x_plain - x_weighted, plain_cov, weighted_cov
+
+
+def test_weights_disagree_rarely_when_the_weights_are_right_and_always_when_a_bias_splits_the_fits():
+    rng = np.random.default_rng(40)
+    null = [weights_disagree(*_plain_and_weighted_fits(rng, 0.0)) for _ in range(400)]
+    assert np.mean(null) < 0.04  # the test's level is 1 %
+    biased = [weights_disagree(*_plain_and_weighted_fits(rng, 1.0)) for _ in range(100)]
+    assert np.mean(biased) > 0.9
+
+
+def test_weights_disagree_takes_directions_the_weights_do_not_sharpen_at_the_plain_fits_noise():
+    plain, weighted = np.diag([4.0, 1.0]), np.diag([1.0, 1.0])  # the second direction gains nothing
+    assert not weights_disagree(np.array([2.0, 0.0]), plain, weighted)  # 2^2 / 3 = 1.3
+    assert weights_disagree(np.array([0.0, 1.0]), plain, weighted)  # 1 / 0.01 = 100 > 9.2
 
 
 def test_track_weights_change_little_when_every_track_is_alike():
