@@ -451,14 +451,14 @@ def _with_unweighted(problem: _Problem, x: FloatArray, fun: FloatArray, raw: Flo
     """The motions' summaries at x: ``_motion_summaries`` of the residuals ``fun`` (2P,) px.
 
     When ``scale`` (P,) weighted them, each carries its unweighted twin from the raw residuals ``raw`` (2P,) px.
+    A track's weight is one number for all its observations (``_track_scale``), so its weighted score,
+    information and RSS are the plain ones times its weight (the scale squared): one pass gives both.
     """
     if scale is None:
         return _motion_summaries(problem, x, fun)
     plain_problem = _Problem(problem.tracks, problem.T0, problem.prior_weight)
-    blocks = plain_problem.jacobian_blocks(x)  # the weighted problem's are these times the scale
-    weighted = _motion_summaries(problem, x, fun, blocks * scale[:, None, None])
-    plain = _motion_summaries(plain_problem, x, raw, blocks)
-    return tuple(replace(w, unweighted=u) for w, u in zip(weighted, plain, strict=True))
+    weight = scale[track_starts(problem.tracks.track)] ** 2  # (T,)
+    return tuple(replace(w, unweighted=u) for w, u in _summary_pairs(plain_problem, x, raw, weight))
 
 
 def weighted_covariance_bound(cov: FloatArray, summaries: Sequence[MotionSummary], prior_row: FloatArray | None,
@@ -719,6 +719,15 @@ def _motion_summaries(problem: _Problem, x: FloatArray, residuals: FloatArray,
     ``residuals``: (2P,) float64, px, the observations' residuals at x; ``blocks``: the problem's
     ``jacobian_blocks`` at x when already computed.
     """
+    return tuple(plain for _, plain in _summary_pairs(problem, x, residuals, None, blocks))
+
+
+def _summary_pairs(problem: _Problem, x: FloatArray, residuals: FloatArray, track_weight: FloatArray | None,
+                   blocks: FloatArray | None = None) -> list[tuple[MotionSummary, MotionSummary]]:
+    """Each motion's (weighted, unweighted) ``MotionSummary`` at x from one pass over the observations.
+
+    ``track_weight`` (T,): each track's weight on all its observations (None: the weighted one is the plain one).
+    """
     n = problem.n_pose
     tracks = problem.tracks
     r = residuals.reshape(-1, 2)
@@ -733,12 +742,19 @@ def _motion_summaries(problem: _Problem, x: FloatArray, residuals: FloatArray,
     T = transform_from_rt(R, t)
     s_lin = float(x[6]) if n == 7 else None
     motions, first = np.unique(tracks.motion, return_index=True)  # tracks are grouped by motion
+
+    def summary(m: int, a: int, b: int, w: FloatArray | None) -> MotionSummary:
+        H = info[a:b].sum(axis=0) if w is None else np.einsum("t,tij->ij", w, info[a:b])
+        gw = g[a:b] if w is None else g[a:b] * w[:, None]
+        rss_m = float(rss[a:b].sum() if w is None else w @ rss[a:b])
+        return MotionSummary(int(m), T, s_lin, 0.5 * (H + H.T), gw.sum(axis=0), gw.T @ gw, rss_m,
+                             2 * int(n_obs[a:b].sum()), int(b - a))
+
     out = []
     for m, a, b in zip(motions, first, np.append(first[1:], tracks.n_tracks), strict=True):
-        H = info[a:b].sum(axis=0)
-        out.append(MotionSummary(int(m), T, s_lin, 0.5 * (H + H.T), g[a:b].sum(axis=0), g[a:b].T @ g[a:b],
-                                 float(rss[a:b].sum()), 2 * int(n_obs[a:b].sum()), int(b - a)))
-    return tuple(out)
+        plain = summary(m, a, b, None)
+        out.append((plain if track_weight is None else summary(m, a, b, track_weight[a:b]), plain))
+    return out
 
 
 def _summary_offsets(summaries: Sequence[MotionSummary], T0: FloatArray, s0: float | None) -> FloatArray:

@@ -13,7 +13,9 @@ from solver.frames import perturb, pose_difference, pose_errors
 from solver.pipeline import CalibratorConfig
 from solver.refinement import (
     RefinementConfig,
+    _motion_summaries,
     _Problem,
+    _with_unweighted,
     build_track_set,
     refine,
     refine_increment,
@@ -328,6 +330,29 @@ def test_weights_disagree_takes_directions_the_weights_do_not_sharpen_at_the_pla
     plain, weighted = np.diag([4.0, 1.0]), np.diag([1.0, 1.0])  # the second direction gains nothing
     assert not weights_disagree(np.array([2.0, 0.0]), plain, weighted)  # 2^2 / 3 = 1.3
     assert weights_disagree(np.array([0.0, 1.0]), plain, weighted)  # 1 / 0.01 = 100 > 9.2
+
+
+def test_weighted_summaries_and_their_twins_match_the_weighted_and_plain_problems_own():
+    """One pass gives both summaries: the same as summarizing the weighted problem and the plain one apart."""
+    scene = _make_scene(41, **NOISY_SCENE)
+    tracks = build_track_set(scene.motions, FOCAL)
+    rng = np.random.default_rng(42)
+    scale = rng.uniform(0.3, 2.0, tracks.n_tracks)[tracks.track]  # one weight per track
+    T = _start_pose(scene.T_true, 43)
+    points, ok = start_points(tracks, T)
+    assert ok.all()
+    x = np.concatenate([np.zeros(6), (points @ T[:3, :3].T + T[:3, 3]).ravel()])
+    weighted_problem, plain_problem = _Problem(tracks, T, None, scale), _Problem(tracks, T)
+    fun, raw = weighted_problem.residuals(x), plain_problem.residuals(x)
+    pairs = _with_unweighted(weighted_problem, x, fun, raw, scale)
+    for got, weighted, plain in zip(pairs, _motion_summaries(weighted_problem, x, fun),
+                                    _motion_summaries(plain_problem, x, raw), strict=True):
+        for a, b in ((got, weighted), (got.unweighted, plain)):
+            for name in ("information", "gradient", "meat"):
+                np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-9,
+                                           atol=1e-12 * np.abs(getattr(b, name)).max())
+            assert a.rss == pytest.approx(b.rss, rel=1e-12)
+            assert (a.n_residuals, a.n_tracks) == (b.n_residuals, b.n_tracks)
 
 
 def test_track_weights_change_little_when_every_track_is_alike():
