@@ -711,3 +711,48 @@ def test_the_subspace_pass_follows_scipys_trf(seed, max_nfev):
 #: (1.2e-4 of 0.031), costs within 2.5e-4 relative. A wrong step (e.g. the damping left out) diverges far more.
 SUBSPACE_POSE_FRACTION = 0.01
 SUBSPACE_COST_RTOL = 1e-3
+
+
+def _lagging(scene: Scene, rate: float) -> list:
+    """The scene's motions with every other track re-projected as turning by ``rate`` times the joint's turn.
+
+    A corner that follows shading on a smooth link instead of the surface lags it: its arc is about the same
+    axis but shorter, while the turns it reports are the joint's.
+    """
+    R, t = scene.T_true[:3, :3], scene.T_true[:3, 3]
+    out, k = [], 0
+    for axis, pivot, tracks in scene.motions:
+        new = []
+        for uv, delta in tracks:
+            if k % 2:
+                p = Rotation.from_rotvec(np.outer(rate * delta, axis)).apply(scene.points[k] - pivot) + pivot
+                uv = project_normalized(p @ R.T + t)
+            new.append((uv, delta))
+            k += 1
+        out.append((axis, pivot, new))
+    return out
+
+
+def test_free_rates_fit_tracks_that_lag_their_surface_and_keep_the_pose_unbiased():
+    scene = _make_scene(44, n_motions=6, n_tracks=6, n_frames=20)
+    tracks = build_track_set(_lagging(scene, 0.96), FOCAL)  # the median lag of sliding as-shipped tracks
+    start = _start_pose(scene.T_true, 45)
+    keep_all = {"outlier_px": 1e3, "outlier_sigmas": 1e3, "track_weights": False}
+    fixed = refine(tracks, start, RefinementConfig(**keep_all))
+    free = refine(tracks, start, RefinementConfig(free_rates=True, **keep_all))
+    rot_fixed, trans_fixed = pose_errors(fixed.T_camera_base, scene.T_true)
+    rot, trans = pose_errors(free.T_camera_base, scene.T_true)
+    assert trans_fixed > 1e-3  # the lag biases the fixed-rate fit by millimetres
+    # noise-free: the rate is eliminated to first order about 1 (the rest, (1 - rate)^2 of the turn, is left)
+    assert rot < 0.05 * rot_fixed and trans < 0.05 * trans_fixed
+
+
+def test_free_rates_cost_precision_but_hold_the_truth_when_every_track_turns_with_the_joint():
+    scene = _make_scene(46, **NOISY_SCENE)
+    tracks, start = build_track_set(scene.motions, FOCAL), _start_pose(scene.T_true, 47)
+    fixed = refine(tracks, start, RefinementConfig(track_weights=False))
+    free = refine(tracks, start, RefinementConfig(free_rates=True, track_weights=False))
+    assert np.all(np.diag(free.covariance) >= np.diag(fixed.covariance) * 0.99)  # less information, never more
+    xi = pose_difference(free.T_camera_base, scene.T_true)
+    assert xi @ np.linalg.solve(free.covariance, xi) < CHI2_6_999
+    assert free.sigma_px == pytest.approx(NOISE_PX, rel=0.15)  # one degree of freedom fewer per track, counted
