@@ -24,6 +24,7 @@ from solver.refinement import (
     build_track_set,
     clustered_pose_covariance,
     conservative_covariance,
+    lagging_tracks,
     motion_jackknife_covariance,
     motion_overdispersion,
     newest_motion_leverage,
@@ -739,7 +740,7 @@ def test_free_rates_fit_tracks_that_lag_their_surface_and_keep_the_pose_unbiased
     start = _start_pose(scene.T_true, 45)
     keep_all = {"outlier_px": 1e3, "outlier_sigmas": 1e3, "track_weights": False}
     fixed = refine(tracks, start, RefinementConfig(**keep_all))
-    free = refine(tracks, start, RefinementConfig(free_rates=True, **keep_all))
+    free = refine(tracks, start, RefinementConfig(free_rates="all", **keep_all))
     rot_fixed, trans_fixed = pose_errors(fixed.T_camera_base, scene.T_true)
     rot, trans = pose_errors(free.T_camera_base, scene.T_true)
     assert trans_fixed > 1e-3  # the lag biases the fixed-rate fit by millimetres
@@ -751,8 +752,31 @@ def test_free_rates_cost_precision_but_hold_the_truth_when_every_track_turns_wit
     scene = _make_scene(46, **NOISY_SCENE)
     tracks, start = build_track_set(scene.motions, FOCAL), _start_pose(scene.T_true, 47)
     fixed = refine(tracks, start, RefinementConfig(track_weights=False))
-    free = refine(tracks, start, RefinementConfig(free_rates=True, track_weights=False))
+    free = refine(tracks, start, RefinementConfig(free_rates="all", track_weights=False))
     assert np.all(np.diag(free.covariance) >= np.diag(fixed.covariance) * 0.99)  # less information, never more
     xi = pose_difference(free.T_camera_base, scene.T_true)
     assert xi @ np.linalg.solve(free.covariance, xi) < CHI2_6_999
     assert free.sigma_px == pytest.approx(NOISE_PX, rel=0.15)  # one degree of freedom fewer per track, counted
+
+
+def test_tested_rates_free_the_lagging_tracks_only():
+    scene = _make_scene(48, n_motions=6, n_tracks=8, n_frames=30)
+    rng = np.random.default_rng(49)
+    noisy = [(axis, pivot, [(uv + rng.normal(0, NOISE_PX, uv.shape) / FOCAL, d) for uv, d in tracks])
+             for axis, pivot, tracks in _lagging(scene, 0.96)]
+    tracks, start = build_track_set(noisy, FOCAL), _start_pose(scene.T_true, 50)
+    keep_all = {"outlier_px": 1e3, "outlier_sigmas": 1e3, "track_weights": False}
+    fixed = refine(tracks, start, RefinementConfig(**keep_all))
+    # the rate test at the fixed-rate fit: most lagging (odd) tracks flagged, none of the others
+    T = fixed.T_camera_base
+    problem = _Problem(tracks, T)
+    x = np.concatenate([np.zeros(6), (fixed.points_base @ T[:3, :3].T + T[:3, 3]).ravel()])
+    flagged = lagging_tracks(problem, x, problem.residuals(x).reshape(-1, 2))
+    odd = np.arange(tracks.n_tracks) % 2 == 1
+    assert flagged[odd].mean() > 0.6 and not flagged[~odd].any()
+    tested = refine(tracks, start, RefinementConfig(free_rates="tested", **keep_all))
+    every = refine(tracks, start, RefinementConfig(free_rates="all", **keep_all))
+    assert pose_errors(tested.T_camera_base, scene.T_true)[1] < 0.5 * pose_errors(fixed.T_camera_base, scene.T_true)[1]
+    xi = pose_difference(tested.T_camera_base, scene.T_true)
+    assert xi @ np.linalg.solve(tested.covariance, xi) < CHI2_6_999
+    assert np.linalg.det(tested.covariance) < np.linalg.det(every.covariance)  # the others keep their phase
