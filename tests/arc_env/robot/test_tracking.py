@@ -290,6 +290,21 @@ def test_a_contrast_change_does_not_end_tracks(rng):
     assert np.median(inner_lengths(track_keypoints(frames, sweep.delta, STRICT))) < 0.95 * N_FRAMES
 
 
+def test_a_corner_floor_keeps_strong_corners_and_drops_weak_ones(rng):
+    # The same sweep at full contrast and at 15 %: corner strength scales with contrast squared, so a floor
+    # above every low-contrast corner (yet far below the full-contrast ones) leaves only the strong sweep tracks.
+    sweep = in_plane_sweep(rng)
+    weak = with_contrast(sweep.frames, np.full(N_FRAMES, 0.15))
+    floor = 4.0 * float(cv2.cornerMinEigenVal(weak[0], SMALL.block_size).max())
+    assert len(track_keypoints(weak, sweep.delta, SMALL).tracks) >= 10  # found without the floor
+    floored = replace(SMALL, min_eigenvalue=floor)
+    assert track_keypoints(weak, sweep.delta, floored).tracks == []
+    strong = track_keypoints(sweep.frames, sweep.delta, floored)
+    assert len(strong.tracks) >= 10
+    errors = np.concatenate([track_errors(t, sweep) for t in strong.tracks])
+    assert np.median(errors) < MEDIAN_TOL_PX and errors.max() < MAX_TOL_PX
+
+
 # --- delta bookkeeping ----------------------------------------------------------------------------
 
 
