@@ -1468,6 +1468,8 @@ def lagging_tracks(problem: _Problem, x: FloatArray, res: FloatArray) -> NDArray
     freedom when the track turns with the joint, so above its quantile at ``RATE_TEST_LEVEL`` it lags (or leads).
     """
     tracks, n = problem.tracks, problem.n_pose
+    if tracks.axis is None or tracks.delta is None:
+        raise InvalidInputError("the turn-rate test needs every track's axis and turns (build_track_set gives them)")
     pc, R, t, _, _ = problem._camera_points(x)
     J_rate = problem._rate_column(pc, R, t, problem._pixel_derivative(pc), _turns_since_start(tracks))  # (P, 2)
     if problem.scale is not None:
