@@ -74,7 +74,11 @@ class TrackerConfig:
             (module doc): on a realistic 720p Panda sweep set (benchmark pose 0, 8 motions, 416 tracks, scored
             against the simulator's surface points) 5 % of the tracks in the weakest quarter at detection
             (below 0.001) stayed within 1.5 px of their point and 42 % drifted over 3 px; in the strongest quarter
-            (above 0.007) 52 % and 13 %.
+            (above 0.007) 52 % and 13 %. Off: at 0.002 (half the tracks gone at 1080p, the good share 24 -> 34 %,
+            the drifting 33 -> 25 %) realistic Panda 1080p episodes on benchmark poses 0-3 ended 5.54e-4 rad /
+            1.48 mm at 25 motions with 2 of 4 usable, against 4.45e-4 / 1.44 mm and 4 of 4 without
+            (``docs/results/realistic-panda-1080p-4x1-floor0.002-ad2a563.json``): the fewer tracks cost more
+            precision than the better ones gain accuracy.
         min_distance_px: least distance between two corners, and between a new corner and a live
             track when re-detecting; pixels.
         block_size: side of the window over which the structure tensor is summed; pixels, >= 3.
