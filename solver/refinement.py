@@ -531,9 +531,9 @@ def weighted_covariance_bound(cov: FloatArray, summaries: Sequence[MotionSummary
     ``cov`` is the weighted adjustment's (``summaries_covariance`` of ``summaries``, about (T0, s0), or about
     their own linearization point when T0 is None). The same tracks unweighted (each summary's
     ``unweighted``) have their optimum a Gauss-Newton step d (n,) away; the bound is their covariance there
-    (``summaries_covariance``, the same settings) plus d d^T, the two estimates' difference: where the weights
-    and the plain fit disagree, that much is unknown. Returns ``cov`` when the summaries carry no unweighted
-    twins (weights off).
+    (``summaries_covariance``, the same settings), plus d d^T, the two estimates' difference, when they differ
+    beyond their noise (``weights_disagree``): where the weights and the plain fit disagree, that much is
+    unknown. Returns ``cov`` when the summaries carry no unweighted twins (weights off).
     """
     if not summaries or all(m.unweighted is None for m in summaries):
         return cov
@@ -1462,6 +1462,8 @@ def _turns_since_start(tracks: TrackSet) -> FloatArray:
 def lagging_tracks(problem: _Problem, x: FloatArray, res: FloatArray) -> NDArray[np.bool_]:
     """(T,) bool: the tracks whose residuals res (P, 2) px at x a turn rate of their own explains beyond their noise.
 
+    ``res`` are ``problem``'s residuals at x (weighted when it is).
+
     Per track, the score test of a rate s_t = 1 (``RefinementConfig.free_rates``): the residuals' component along
     the rate's column, with the track's point re-fitted (the column made orthogonal to the point's three), squared
     over the track's own noise (its RSS over 2 M - 3) times the column's norm; chi-square with one degree of
@@ -1472,9 +1474,8 @@ def lagging_tracks(problem: _Problem, x: FloatArray, res: FloatArray) -> NDArray
         raise InvalidInputError("the turn-rate test needs every track's axis and turns (build_track_set gives them)")
     pc, R, t, _, _ = problem._camera_points(x)
     J_rate = problem._rate_column(pc, R, t, problem._pixel_derivative(pc), _turns_since_start(tracks))  # (P, 2)
-    if problem.scale is not None:
+    if problem.scale is not None:  # res and the blocks carry it already
         J_rate = J_rate * problem.scale[:, None]
-        res = res * problem.scale[:, None]
     Jq = problem.jacobian_blocks(x)[:, :, n:]  # (P, 2, 3): by the point
     starts = track_starts(tracks.track)
     A = np.add.reduceat(np.einsum("pki,pkj->pij", Jq, Jq), starts) + 1e-12 * np.eye(3)
