@@ -387,9 +387,8 @@ class _Problem:
         if self.prior_weight is None:
             blocks = np.concatenate([d_omega, D - DM, DM], axis=2)
         else:
-            arm = (pc - t) @ R - self.obs_pivot  # p_base - d_b
-            d_s = np.cross(self.obs_axis, arm) @ R.T * tr.velocity[:, None]  # (P, 3): camera point by s
-            blocks = np.concatenate([d_omega, D - DM, np.einsum("pij,pj->pi", D, d_s)[:, :, None], DM], axis=2)
+            d_s = self._rate_column(pc, R, t, D, tr.velocity)  # (P, 2): pixel by s, the turn v s
+            blocks = np.concatenate([d_omega, D - DM, d_s[:, :, None], DM], axis=2)
         if self.rate_free:
             J_rate = self._rate_column(pc, R, t, D, self.rate_turn)
             blocks = blocks - J_rate[:, :, None] * self._rate_coefficients(J_rate, blocks)[tr.track][:, None, :]
@@ -408,10 +407,10 @@ class _Problem:
 
     def _rate_column(self, pc: FloatArray, R: FloatArray, t: FloatArray, D: FloatArray, turn: FloatArray
                      ) -> FloatArray:
-        """(P, 2) px: each observation's pixel by its track's turn rate (``TrackSet.free_rates``), at rate 1.
+        """(P, 2) px: each observation's pixel by a parameter that turns it by ``turn`` (P,) per unit.
 
-        ``turn`` (P,) rad: the turn since the track's first frame; times the point's velocity about the axis,
-        v R (a_b x (p_base - d_b)).
+        ``turn`` times the point's velocity about the axis, v R (a_b x (p_base - d_b)): for a track's own turn
+        rate (``TrackSet.free_rates``) the turn since its first frame; for the time offset the joint's velocity.
         """
         arm = (pc - t) @ R - self.obs_pivot  # p_base - d_b
         d_rate = np.cross(self.tracks.axis[self.tracks.track], arm) @ R.T * turn[:, None]  # camera point by the rate
