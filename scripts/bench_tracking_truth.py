@@ -39,11 +39,13 @@ from solver.errors import ArcCalibError  # noqa: E402
 #: "gaussian-weighted-check": the Gaussian window judged by the weighted dissimilarity alone
 #: (``max_window_dissimilarity`` off); "quadratic": the quadratic warp on a uniform window; "cold-lk": LK searching
 #: every pyramid level from rest at each step instead of from the track's last step
-#: (``TrackerConfig.predicted_max_level`` off).
+#: (``TrackerConfig.predicted_max_level`` off); "still-window": tracks whose detection window stays still while
+#: they move are dropped (``TrackerConfig.max_static_fraction`` 0.6).
 SETTINGS = {"default": TrackerConfig(), "affine": TrackerConfig(window_sigma_px=0.0),
             "cold-lk": TrackerConfig(predicted_max_level=None),
             "gaussian-weighted-check": TrackerConfig(max_window_dissimilarity=1e9),
-            "quadratic": TrackerConfig(quadratic_warp=True, window_sigma_px=0.0)}
+            "quadratic": TrackerConfig(quadratic_warp=True, window_sigma_px=0.0),
+            "still-window": TrackerConfig(max_static_fraction=0.6)}
 
 
 def rendered_motions(env: Any, obs: Any, spec: EpisodeSpec) -> list[SeenMotion]:  # noqa: ANN401 (sim env)

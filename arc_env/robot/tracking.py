@@ -194,6 +194,15 @@ class TrackerConfig:
             poses 0-1, iiwa and xArm 6 pose 0: 48 / 38 / 42 / 33 per motion against 49 / 45 / 44 / 42 with the
             two checks); their calibrations at 25 motions (1.94 / 2.28 / 4.56 / 6.72 mm against 2.55 / 2.67 /
             6.64 / 4.47) differ by no more than single runs of nearly identical trackers do.
+        max_static_fraction: a track is dropped whole when, once it has moved ``static_check_px`` from where it
+            was detected, more than this fraction of its detection window (``win_size_px`` square, in place) shows
+            the same grey levels as at detection (within 2.5 sigma of the frame pair's noise, estimated outside
+            the moving mask; at least 1 grey level): the corner was not on a moving link but on what stays
+            still, background or a link the joint does not move, next to an edge that passed (``_static_fraction``).
+            A window on a turning link changes where it has structure; one on a smooth casting has little, so
+            this is a fraction, not a test that any pixel stayed. 1: no check (the default until measured).
+        static_check_px: how far a track must have moved from its first point before ``max_static_fraction``
+            judges it; pixels, > 0.
     """
 
     max_corners: int = 400
@@ -223,6 +232,8 @@ class TrackerConfig:
     max_bend_px: float = 2.0
     window_sigma_px: float = 4.0
     max_window_dissimilarity: float = 0.53
+    max_static_fraction: float = 1.0
+    static_check_px: float = 3.0
 
     def __post_init__(self) -> None:
         checks = [
@@ -252,6 +263,8 @@ class TrackerConfig:
             (self.quadratic_ridge >= 0.0, "quadratic_ridge must be >= 0"),
             (self.max_bend_px > 0.0, "max_bend_px must be > 0"),
             (self.window_sigma_px >= 0.0, "window_sigma_px must be >= 0 (0 = a uniform window)"),
+            (0.0 < self.max_static_fraction <= 1.0, "max_static_fraction must be in (0, 1] (1 = no check)"),
+            (self.static_check_px > 0.0, "static_check_px must be > 0"),
         ]
         for ok, message in checks:
             if not ok:
@@ -272,7 +285,7 @@ class TrackingResult:
     """What ``track_keypoints`` found in one sweep.
 
     Every detected corner ends up in exactly one place: ``n_detected == len(tracks) + n_dropped_fb
-    + n_dropped_dissimilar + n_dropped_short + n_dropped_static``.
+    + n_dropped_dissimilar + n_dropped_short + n_dropped_static + n_dropped_background``.
 
     Attributes:
         tracks: the kept tracks, pixels (M, 2) float64 and delta (M,) float64 rad each, over
@@ -285,6 +298,8 @@ class TrackingResult:
         n_dropped_short: tracks that reached the last frame but have fewer than ``min_track_frames``
             frames (late re-detections); count.
         n_dropped_static: long-enough tracks that never left ``min_displacement_px`` of their start; count.
+        n_dropped_background: tracks whose detection window stayed still while they moved
+            (``TrackerConfig.max_static_fraction``); count.
         n_truncated: kept tracks that a check ended before the last frame (their prefix is kept); count.
         seconds: wall-clock time of the whole call; seconds.
     """
@@ -297,6 +312,7 @@ class TrackingResult:
     n_dropped_static: int
     n_truncated: int
     seconds: float
+    n_dropped_background: int = 0
 
 
 def _grey_frames(frames: Sequence[ImageArray]) -> list[ImageArray]:
@@ -484,8 +500,8 @@ _MAX_AREA_RATIO = 4.0
 #: A lost track is carried along by the affine motion of this many nearest live tracks (``_refind``).
 _REFIND_NEIGHBOURS = 8
 
-#: Why a track ended before the last frame.
-_RUNNING, _ENDED_FB, _ENDED_DISSIMILAR = 0, 1, 2
+#: Why a track ended before the last frame (``_ENDED_BACKGROUND``: dropped whole, ``max_static_fraction``).
+_RUNNING, _ENDED_FB, _ENDED_DISSIMILAR, _ENDED_BACKGROUND = 0, 1, 2, 3
 
 
 @dataclass
@@ -508,6 +524,9 @@ class _LiveTracks:
         ridge: (n,) float64: strength of each track's prior pulling Q towards 0 (``quadratic_ridge``).
         step: (n, 2) float32, px: each track's last frame-to-frame step, NaN where it has none (new or
             found again); where it has one, LK starts from it (``_lk_predicted``).
+        origin: (n, 2) float32, pixels in the crop: where each track was detected.
+        born: (n,) int64: the frame each track was detected in.
+        judged: (n,) bool: whether ``TrackerConfig.max_static_fraction`` has judged the track yet.
     """
 
     ids: NDArray[np.int64]
@@ -521,6 +540,9 @@ class _LiveTracks:
     Q: NDArray[np.float64]
     ridge: NDArray[np.float64]
     step: NDArray[np.float32]
+    origin: NDArray[np.float32]
+    born: NDArray[np.int64]
+    judged: NDArray[np.bool_]
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
@@ -548,17 +570,18 @@ def _patch_offsets(win_size_px: int) -> NDArray[np.float32]:
     return np.column_stack([gx.ravel(), gy.ravel()])
 
 
-def _new_tracks(image: ImageArray, pts: NDArray[np.float32], first_id: int,
+def _new_tracks(image: ImageArray, pts: NDArray[np.float32], first_id: int, frame: int,
                 config: TrackerConfig) -> _LiveTracks:
-    """Tracks starting at ``pts`` in ``image``, with their patches if the affine refinement is on."""
+    """Tracks starting at ``pts`` in ``image``, frame number ``frame``, with their patches if the affine fit is on."""
     n = pts.shape[0]
+    start = (pts.copy(), np.full(n, frame, np.int64), np.zeros(n, dtype=bool))
     ids = np.arange(first_id, first_id + n, dtype=np.int64)
     no_step = np.full((n, 2), np.nan, np.float32)
     A = np.tile(np.eye(2), (n, 1, 1))
     Q = np.zeros((n, 2, 3))
     if config.affine_iterations == 0 or n == 0:
         return _LiveTracks(ids, pts, np.zeros((n, 0), np.float32), np.ones(n, np.float32), np.ones(n, np.float32),
-                           np.zeros((n, 6, 0), np.float32), np.zeros((n, 6, 6)), A, Q, np.zeros(n), no_step)
+                           np.zeros((n, 6, 0), np.float32), np.zeros((n, 6, 6)), A, Q, np.zeros(n), no_step, *start)
     w = config.win_size_px
     # Sample a one-pixel larger square so central differences cover the whole patch.
     r = np.arange(-(w // 2) - 1, w // 2 + 2, dtype=np.float32)
@@ -592,7 +615,7 @@ def _new_tracks(image: ImageArray, pts: NDArray[np.float32], first_id: int,
     scale = np.maximum(spread, 1e-3).astype(np.float32)
     window_scale = scale if root is None else np.maximum(patch.std(axis=1), 1e-3).astype(np.float32)
     return _LiveTracks(ids, pts, template, scale, window_scale, steepest, np.linalg.inv(hessian), A, Q, ridges,
-                       no_step)
+                       no_step, *start)
 
 
 def _root_weights(config: TrackerConfig) -> NDArray[np.float32] | None:
@@ -791,6 +814,76 @@ def _refind(image: ImageArray, lost: _LiveTracks, lost_at: NDArray[np.int64], mo
     return lost.select(ok), lost_at[ok], lost.select(~ok), lost_at[~ok]
 
 
+#: Most pixels outside the moving mask that estimate a frame pair's noise (``_still_sample``).
+_NOISE_SAMPLES = 20_000
+
+
+def _still_sample(mask: ImageArray) -> NDArray[np.int64]:
+    """(s,) int64: flat indices of up to ``_NOISE_SAMPLES`` pixels outside ``mask`` (H, W) uint8, evenly spread."""
+    outside = np.flatnonzero(mask.ravel() == 0)
+    return outside[::max(1, outside.size // _NOISE_SAMPLES)]
+
+
+def static_tolerance(first: ImageArray, current: ImageArray, still: NDArray[np.int64]) -> float:
+    """Grey levels: the largest change of a pixel that stays still between two frames (H, W) uint8.
+
+    2.5 sigma of the pair's noise, sigma from the median absolute difference at the pixels ``still`` (flat
+    indices, outside the moving mask; 1.4826 x MAD), and at least 1 (noise-free renders: a still pixel is equal).
+    """
+    if still.size == 0:
+        return 1.0
+    difference = np.abs(current.ravel()[still].astype(np.int16) - first.ravel()[still].astype(np.int16))
+    return max(1.0, 2.5 * 1.4826 * float(np.median(difference)))
+
+
+def static_fraction(first: ImageArray, current: ImageArray, centres: FloatArray, half: int,
+                    tolerance: float) -> FloatArray:
+    """(m,) the fraction of each window whose grey level did not change between two frames.
+
+    Args:
+        first: (H, W) uint8: the frame the windows were taken in.
+        current: (H, W) uint8: a later frame.
+        centres: (m, 2) pixels: the windows' centres (rounded), each a (2 half + 1) square, cut at the image's edge.
+        half: the windows' half side; pixels.
+        tolerance: grey levels: a pixel is unchanged if it differs by less than this (``static_tolerance``).
+    """
+    h, w = first.shape
+    out = np.zeros(centres.shape[0])
+    for i, (x, y) in enumerate(np.rint(centres).astype(np.int64)):
+        ya, yb, xa, xb = max(y - half, 0), min(y + half + 1, h), max(x - half, 0), min(x + half + 1, w)
+        if ya >= yb or xa >= xb:
+            continue
+        change = cv2.absdiff(first[ya:yb, xa:xb], current[ya:yb, xa:xb])
+        out[i] = float(np.mean(change < tolerance))
+    return out
+
+
+def _judge_background(greys: list[ImageArray], k: int, origin: tuple[int, int], live: _LiveTracks,
+                      still: NDArray[np.int64], tolerances: dict[tuple[int, int], float],
+                      config: TrackerConfig) -> NDArray[np.bool_]:
+    """(n,) bool: the live tracks that ``TrackerConfig.max_static_fraction`` drops in frame ``k``.
+
+    Judges once each track that has now moved ``static_check_px`` from its first point (marking it judged):
+    its detection window, in place, in its first frame against frame ``k``. ``origin`` (x0, y0): the crop's
+    corner in the frame; ``tolerances`` caches ``static_tolerance`` per (first frame, k).
+    """
+    drop = np.zeros(len(live), dtype=bool)
+    due = ~live.judged & (np.linalg.norm(live.pts - live.origin, axis=1) >= config.static_check_px)
+    if not np.any(due):
+        return drop
+    live.judged = live.judged | due
+    offset = np.asarray(origin, dtype=np.float64)
+    for born in np.unique(live.born[due]):
+        rows = np.flatnonzero(due & (live.born == born))
+        pair = (int(born), k)
+        if pair not in tolerances:
+            tolerances[pair] = static_tolerance(greys[pair[0]], greys[k], still)
+        fraction = static_fraction(greys[pair[0]], greys[k], live.origin[rows] + offset, config.win_size_px // 2,
+                                   tolerances[pair])
+        drop[rows] = fraction > config.max_static_fraction
+    return drop
+
+
 def track_keypoints(frames: Sequence[ImageArray], delta: FloatArray,
                     config: TrackerConfig | None = None) -> TrackingResult:
     """Track corners on the moving links through one sweep.
@@ -831,9 +924,11 @@ def track_keypoints(frames: Sequence[ImageArray], delta: FloatArray,
     mask_full = _moving_mask_u8(greys, config)
     roi = _roi(mask_full, config)
     if roi is None:
-        return TrackingResult([], 0, 0, 0, 0, 0, 0, time.perf_counter() - start_time)
+        return TrackingResult([], 0, 0, 0, 0, 0, 0, time.perf_counter() - start_time, 0)
     x0, y0, x1, y1 = roi
     mask = np.ascontiguousarray(mask_full[y0:y1, x0:x1])
+    still = _still_sample(mask_full) if config.max_static_fraction < 1.0 else np.empty(0, np.int64)
+    tolerances: dict[tuple[int, int], float] = {}
     width, height = x1 - x0, y1 - y0
 
     # Per frame: the ids and positions of the tracks alive in it. Per track: why it ended.
@@ -843,7 +938,7 @@ def track_keypoints(frames: Sequence[ImageArray], delta: FloatArray,
 
     prev = greys[0][y0:y1, x0:x1]
     live = _new_tracks(prev, _detect(prev, mask, np.empty((0, 2), np.float32), config.max_corners, config),
-                       0, config)
+                       0, 0, config)
     ended.extend([_RUNNING] * len(live))
     record_ids.append(live.ids)
     record_pts.append(live.pts.astype(np.float64))
@@ -875,6 +970,13 @@ def track_keypoints(frames: Sequence[ImageArray], delta: FloatArray,
             moved_from, moved_to = before[inside], positions
             live.pts = positions.astype(np.float32)
             live.step = (positions - moved_from).astype(np.float32)
+            if config.max_static_fraction < 1.0 and len(live):
+                background = _judge_background(greys, k, (x0, y0), live, still, tolerances, config)
+                for track_id in live.ids[background]:
+                    ended[track_id] = _ENDED_BACKGROUND
+                keep = ~background
+                live, positions = live.select(keep), positions[keep]
+                moved_from, moved_to = moved_from[keep], moved_to[keep]
         if config.refind_frames and config.affine_iterations:
             lost, lost_at = lost.extend(dropped), np.concatenate([lost_at, np.full(len(dropped), k)])
             keep = k - lost_at < config.refind_frames
@@ -889,7 +991,7 @@ def track_keypoints(frames: Sequence[ImageArray], delta: FloatArray,
         if config.redetect_every and k % config.redetect_every == 0 and n_frames - k >= config.min_track_frames:
             taken = np.concatenate([live.pts, lost.pts]) if len(lost) else live.pts
             corners = _detect(nxt, mask, taken, config.max_corners - len(live), config)
-            new = _new_tracks(nxt, corners, len(ended), config)
+            new = _new_tracks(nxt, corners, len(ended), k, config)
             ended.extend([_RUNNING] * len(new))
             live = live.extend(new)
             positions = np.concatenate([positions, corners.astype(np.float64)])
@@ -903,7 +1005,7 @@ def _assemble(record_ids: list[NDArray[np.int64]], record_pts: list[FloatArray],
               delta: FloatArray, origin: tuple[int, int], config: TrackerConfig,
               start_time: float) -> TrackingResult:
     """Regroup the per-frame records into tracks, drop the short and static ones, and count."""
-    counts = {"fb": 0, "dissimilar": 0, "short": 0, "static": 0, "truncated": 0}
+    counts = {"fb": 0, "dissimilar": 0, "short": 0, "static": 0, "truncated": 0, "background": 0}
     tracks: list[KeypointTrack] = []
     if ended:
         all_ids = np.concatenate(record_ids)
@@ -913,7 +1015,9 @@ def _assemble(record_ids: list[NDArray[np.int64]], record_pts: list[FloatArray],
         for rows in np.split(order, np.flatnonzero(np.diff(all_ids[order])) + 1):
             reason = ended[int(all_ids[rows[0]])]
             pixels = all_pts[rows]
-            if rows.shape[0] < config.min_track_frames:
+            if reason == _ENDED_BACKGROUND:
+                counts["background"] += 1
+            elif rows.shape[0] < config.min_track_frames:
                 counts[{_RUNNING: "short", _ENDED_FB: "fb", _ENDED_DISSIMILAR: "dissimilar"}[reason]] += 1
             elif np.max(np.linalg.norm(pixels - pixels[0], axis=1)) <= config.min_displacement_px:
                 counts["static"] += 1
@@ -921,4 +1025,4 @@ def _assemble(record_ids: list[NDArray[np.int64]], record_pts: list[FloatArray],
                 counts["truncated"] += reason != _RUNNING
                 tracks.append(KeypointTrack(pixels, delta[all_frames[rows]]))
     return TrackingResult(tracks, len(ended), counts["fb"], counts["dissimilar"], counts["short"], counts["static"],
-                          counts["truncated"], time.perf_counter() - start_time)
+                          counts["truncated"], time.perf_counter() - start_time, counts["background"])

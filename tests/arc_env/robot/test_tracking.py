@@ -19,7 +19,14 @@ import cv2
 import numpy as np
 import pytest
 
-from arc_env.robot.tracking import TrackerConfig, TrackingResult, moving_mask, track_keypoints
+from arc_env.robot.tracking import (
+    TrackerConfig,
+    TrackingResult,
+    moving_mask,
+    static_fraction,
+    static_tolerance,
+    track_keypoints,
+)
 from solver.errors import InvalidInputError
 from solver.observations import KeypointTrack
 
@@ -194,7 +201,7 @@ def max_errors(result: TrackingResult, sweep: Sweep) -> np.ndarray:
 
 def assert_counts_add_up(result: TrackingResult) -> None:
     assert result.n_detected == (len(result.tracks) + result.n_dropped_fb + result.n_dropped_dissimilar
-                                 + result.n_dropped_short + result.n_dropped_static)
+                                 + result.n_dropped_short + result.n_dropped_static + result.n_dropped_background)
 
 
 SWEEPS = {"in_plane": in_plane_sweep, "perspective": perspective_sweep}
@@ -306,6 +313,67 @@ def test_a_corner_floor_keeps_strong_corners_and_drops_weak_ones(rng):
 
 
 # --- delta bookkeeping ----------------------------------------------------------------------------
+
+
+#: The bar sweep: a smooth bar (uniform but for a few textured labels) slides by BAR_STEP px a frame over a
+#: background of horizontal stripes; where its upright edges cross a stripe edge they make corners that slide
+#: along the stripe (sideways only), not with the bar.
+BAR_STEP = np.array([1.0, 0.6])
+BAR_FRAMES = 30
+
+
+def bar_sweep(rng: np.random.Generator) -> tuple[list[np.ndarray], np.ndarray]:
+    """F (H, W) uint8 frames of the bar sweep and (F,) its 'delta' (the frame number)."""
+    h, w = SIZE
+    rows = np.arange(h, dtype=np.float32)[:, None]
+    stripes = np.broadcast_to(np.where((rows // 12) % 2 == 0, 70.0, 170.0), (h, w)).astype(np.float32)
+    background = cv2.GaussianBlur(stripes, (0, 0), 1.0)
+    bar = np.full((h, w), 215.0, np.float32)
+    cover = np.zeros((h, w), np.float32)
+    cover[70:170, 60:150] = 1.0
+    for x, y in ((75, 85), (115, 95), (80, 135), (120, 145)):  # the labels: small textured patches
+        bar[y:y + 14, x:x + 14] = noise_texture(rng, (14, 14), 1.0)
+    cover = cv2.GaussianBlur(cover, (0, 0), 0.7)
+    frames = []
+    for k in range(BAR_FRAMES):
+        M = np.array([[1.0, 0.0, BAR_STEP[0] * k], [0.0, 1.0, BAR_STEP[1] * k]])
+        moved = cv2.warpAffine(bar, M, (w, h), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE)
+        alpha = cv2.warpAffine(cover, M, (w, h), flags=cv2.INTER_LINEAR)
+        frames.append(composite(background, moved, alpha))
+    return frames, np.arange(BAR_FRAMES, dtype=np.float64)
+
+
+def bar_errors(result: TrackingResult) -> np.ndarray:
+    """(M,) px: each kept track's largest distance from where the bar carries its first point."""
+    return np.array([np.max(np.linalg.norm(t.pixels - t.pixels[0] - np.outer(t.delta - t.delta[0], BAR_STEP), axis=1))
+                     for t in result.tracks])
+
+
+def test_the_still_window_check_drops_corners_that_slide_along_the_background(rng):
+    frames, delta = bar_sweep(rng)
+    config = replace(SMALL, min_distance_px=5.0)
+    unchecked = track_keypoints(frames, delta, config)
+    assert np.sum(bar_errors(unchecked) > 3.0) >= 2  # teeth: sliding corners pass every other check
+    checked = track_keypoints(frames, delta, replace(config, max_static_fraction=0.6))
+    assert checked.n_dropped_background >= 2
+    assert_counts_add_up(checked)
+    assert len(checked.tracks) >= 8  # the labels' corners stay
+    assert np.max(bar_errors(checked)) < MAX_TOL_PX
+
+
+def test_static_fraction_and_tolerance_against_a_shifted_image(rng):
+    image = np.clip(noise_texture(rng, (60, 80)), 0, 255).astype(np.uint8)
+    shifted = np.roll(image, 3, axis=1)
+    shifted[:, :40] = image[:, :40]  # the left half stays, the right half moves by 3 px
+    centres = np.array([[20.0, 30.0], [60.0, 30.0], [40.0, 30.0], [0.0, 0.0]])
+    fraction = static_fraction(image, shifted, centres, 5, 1.0)
+    assert fraction[0] == 1.0 and fraction[1] < 0.2 and 0.4 < fraction[2] < 0.6
+    assert fraction[3] == 1.0  # cut at the corner: the 6 x 6 inside are all still
+    noisy = np.clip(image + rng.normal(0.0, 3.0, image.shape), 0, 255).astype(np.uint8)
+    still = np.arange(image.size)
+    assert static_tolerance(image, image, still) == 1.0
+    # the difference of one noisy frame from a clean one: sigma 3, MAD-based, times 2.5
+    assert 2.5 * 3.0 * 0.8 < static_tolerance(image, noisy, still) < 2.5 * 3.0 * 1.25
 
 
 def test_delta_is_carried_through(rng):
