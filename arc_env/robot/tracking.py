@@ -198,7 +198,7 @@ class TrackerConfig:
             was detected, more than this fraction of its detection window (``win_size_px`` square, in place) shows
             the same grey levels as at detection (within 2.5 sigma of the frame pair's noise, estimated outside
             the moving mask; at least 1 grey level): the corner was not on a moving link but on what stays
-            still, background or a link the joint does not move, next to an edge that passed (``_static_fraction``).
+            still, background or a link the joint does not move, next to an edge that passed (``static_fraction``).
             A window on a turning link changes where it has structure; one on a smooth casting has little, so
             this is a fraction, not a test that any pixel stayed. 1: no check (the default). Measured against
             the simulator's surface points on realistic Panda sweeps (benchmark pose 0, 8 motions, the same saved
