@@ -80,7 +80,15 @@ class TrackerConfig:
             (``docs/results/realistic-panda-1080p-4x1-floor0.002-ad2a563.json``): the fewer tracks cost more
             precision than the better ones gain accuracy.
         min_distance_px: least distance between two corners, and between a new corner and a live
-            track when re-detecting; pixels.
+            track when re-detecting; pixels. 10 -> 6 measured: on the saved realistic Panda sweeps scored against the
+            simulator (``max_static_fraction``'s) 1080p 509 -> 701 tracks, good 122 -> 160, drifting 166 -> 261,
+            spanning the sweep 126 -> 164; 720p 416 -> 594, good 91 -> 136 (``max_corners`` 400 or 800 alike).
+            Rendered 1080p Panda poses 0-3 (bench-only commits d7f1a39, also 800 corners, and a3f2f75;
+            ``docs/results/*-mindist6-*.json``), at 25 motions against 10 px: realistic 4.54e-4 rad / 1.26 mm, 4 of
+            4 usable (4.45e-4 / 1.44, 4 of 4), 82 tracks per motion (58); as shipped with camera effects 1.36e-3 /
+            3.38 mm, 2 of 4 usable (1.53e-3 / 3.33, 1 of 4; one of the two, pose 2, 6.05 mm off at a 1-sigma of
+            2.55 mm); clean painted 4.3e-5 / 0.16 mm, 4 of 4 (5.41e-5 / 0.21, 4 of 4). Per run both ways, within
+            what nearly identical trackers differ by, for about a quarter more tracking time: 10 stays.
         block_size: side of the window over which the structure tensor is summed; pixels, >= 3.
         win_size_px: side of the LK search window at every pyramid level; pixels, odd, >= 5.
         max_level: coarsest LK pyramid level (0 = no pyramid; each level halves the image); count.
