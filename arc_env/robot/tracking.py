@@ -55,6 +55,7 @@ from numpy.typing import NDArray
 from solver.arrays import FloatArray, ImageArray, MaskArray
 from solver.errors import InvalidInputError
 from solver.observations import KeypointTrack
+from solver.schur import robust_sigma
 
 #: LK termination: stop after 30 iterations or when an update is below 0.01 px (per pyramid level).
 DEFAULT_CRITERIA: tuple[int, int, float] = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
@@ -845,12 +846,13 @@ def static_tolerance(first: ImageArray, current: ImageArray, still: NDArray[np.i
     """Grey levels: the largest change of a pixel that stays still between two frames (H, W) uint8.
 
     2.5 sigma of the pair's noise, sigma from the median absolute difference at the pixels ``still`` (flat
-    indices, outside the moving mask; 1.4826 x MAD), and at least 1 (noise-free renders: a still pixel is equal).
+    indices, outside the moving mask; ``solver.schur.robust_sigma``, 1.4826 x MAD), and at least 1 (noise-free
+    renders: a still pixel is equal).
     """
     if still.size == 0:
         return 1.0
     difference = np.abs(current.ravel()[still].astype(np.int16) - first.ravel()[still].astype(np.int16))
-    return max(1.0, 2.5 * 1.4826 * float(np.median(difference)))
+    return max(1.0, 2.5 * robust_sigma(difference))
 
 
 def static_fraction(first: ImageArray, current: ImageArray, centres: FloatArray, half: int,
