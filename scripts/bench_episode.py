@@ -37,7 +37,8 @@ reported 1-sigma (``arc_env.bench.episodes.falsely_converged``).
  "runs_with_track_counts", "usable_fraction",
  "axes_conics_per_run_median", "axes_rigid_per_run_median", "runs_with_front_ends",
  "pose_by_5_fraction", "false_convergence_runs", "runs_with_convergence_check",
- "coverage_95_at_end", "runs_with_coverage_at_end", "coverage_95_updates", "updates_with_coverage", "runs_with_chi2",
+ "coverage_95_at_end", "runs_with_coverage_at_end", "coverage_95_updates", "updates_with_coverage",
+ "chi2_updates_median", "runs_with_chi2",
  "realism", "appearance", "targets" (realistic runs only): {"usable_every_run", "median_at_25",
  "median_target_25": [rad, m] or null, "pose_by_5", "no_false_convergence"} (true, false, or null: n/a)}.
 ``seconds_split``: median seconds per tracked episode of each part; "report" is the solver's time on the paper's
@@ -48,8 +49,9 @@ what the default settings spend (records stored before this split have 0 and the
 whose final estimate is usable among ``runs_with_track_counts``; ``usable_fraction`` is their ratio.
 ``pose_by_5_fraction``: runs with an estimate after motion 5 (null with fewer motions).
 ``false_convergence_runs``: runs with at least one falsely converged motion. ``coverage_95_at_end``: the share of
-runs whose reported 95 % region held the truth after their last motion, ``coverage_95_updates`` after every update
-(``coverage_figures``; null without a covariance). Records stored before a
+runs whose reported 95 % region held the truth after their last motion, ``coverage_95_updates`` after every update,
+``chi2_updates_median`` the median chi-square of the truth over those updates (5.35 when the covariance is
+calibrated; lower: wider than the errors) (``coverage_figures``; null without a covariance). Records stored before a
 figure existed are left out of it; ``runs_with_track_counts``, ``runs_with_front_ends`` and
 ``runs_with_convergence_check`` count the runs that have it. Without ``--robots``, ``--sizes`` and
 ``--beside-clean`` the document is these figures (the Panda, one size, one look); with any of them it is
@@ -164,6 +166,9 @@ def convergence_figures(runs: list[dict]) -> dict:
 
 #: The 95 % quantile of chi-square with 6 degrees of freedom: an honest covariance's region holds the truth below it.
 CHI2_6_95 = float(chi2.ppf(0.95, 6))
+#: Its median: a calibrated covariance's updates have half their chi-squares below it; far fewer is a region wider than
+#: the errors (conservative), far more a narrower one.
+CHI2_6_MEDIAN = float(chi2.ppf(0.5, 6))
 
 
 def coverage_figures(runs: list[dict]) -> dict:
@@ -171,6 +176,7 @@ def coverage_figures(runs: list[dict]) -> dict:
 
     ``coverage_95_at_end``: the fraction of runs whose last update's chi-square is below ``CHI2_6_95`` (of those
     with a covariance then); ``coverage_95_updates``: the same over every update with a covariance, pooled;
+    ``chi2_updates_median``: the median of those updates' chi-squares (``CHI2_6_MEDIAN`` when calibrated);
     None when there is none. Records stored before ``chi2_curve`` existed are left out (``runs_with_chi2``).
     """
     counted = [r for r in runs if "chi2_curve" in r]
@@ -179,7 +185,8 @@ def coverage_figures(runs: list[dict]) -> dict:
     return {"coverage_95_at_end": float(np.mean(np.array(ends) <= CHI2_6_95)) if ends else None,
             "runs_with_coverage_at_end": len(ends),
             "coverage_95_updates": float(np.mean(np.array(updates) <= CHI2_6_95)) if updates else None,
-            "updates_with_coverage": len(updates), "runs_with_chi2": len(counted)}
+            "updates_with_coverage": len(updates),
+            "chi2_updates_median": float(np.median(updates)) if updates else None, "runs_with_chi2": len(counted)}
 
 
 def median_target(height: int) -> tuple[float, float] | None:
@@ -341,7 +348,8 @@ def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], n_moti
     if out["runs_with_coverage_at_end"]:
         print(f"the 95 % region held the truth at the end in {out['coverage_95_at_end']:.0%} of "
               f"{out['runs_with_coverage_at_end']} runs, after {out['coverage_95_updates']:.0%} of "
-              f"{out['updates_with_coverage']} updates")
+              f"{out['updates_with_coverage']} updates (median chi-square {out['chi2_updates_median']:.2f}; "
+              f"{CHI2_6_MEDIAN:.2f} if calibrated, lower: a region wider than the errors)")
     if "targets" in out:
         print(targets_line(out, n_motions))
     return out

@@ -90,9 +90,12 @@ def test_coverage_counts_the_runs_whose_region_holds_the_truth(script):
     assert "chi2_curve" not in runs[3]  # stored before the figure
     figures = script.coverage_figures(runs)
     assert figures == {"coverage_95_at_end": 0.5, "runs_with_coverage_at_end": 2,
-                       "coverage_95_updates": pytest.approx(3 / 5), "updates_with_coverage": 5, "runs_with_chi2": 3}
+                       "coverage_95_updates": pytest.approx(3 / 5), "updates_with_coverage": 5,
+                       "chi2_updates_median": pytest.approx(5.0), "runs_with_chi2": 3}  # of 30, 5, 2, 3, 13
     assert script.coverage_figures(runs[2:])["coverage_95_at_end"] is None
+    assert script.coverage_figures(runs[2:])["chi2_updates_median"] is None
     assert script.CHI2_6_95 == pytest.approx(12.592, abs=1e-3)
+    assert script.CHI2_6_MEDIAN == pytest.approx(5.348, abs=1e-3)
 
 
 def test_figures_leave_out_old_records(script):
