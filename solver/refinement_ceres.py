@@ -43,6 +43,7 @@ from solver.refinement import (
     agreeing_tracks,
     conservative_covariance,
     kept_points,
+    split_agreeing_tracks,
     start_points,
 )
 from solver.schur import robust_sigma
@@ -252,7 +253,7 @@ def refine_ceres(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig 
     model.solve("cauchy", config.cauchy_scale_px, config.max_nfev, config.robust_ftol, options)
     T, pts = model.pose(), model.points()
     res = _numpy_residuals(sub, T, pts)[2].reshape(-1, 2)
-    good = agreeing_tracks(sub, res, robust_sigma(res), config)
+    good = agreeing_tracks(sub, res, robust_sigma(res), config) & split_agreeing_tracks(sub, T, config)
     if good.sum() < 2:
         raise InsufficientMotionsError("fewer than two tracks agree with the refined pose")
     sub2 = _subset(sub, good)

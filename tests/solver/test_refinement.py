@@ -33,6 +33,7 @@ from solver.refinement import (
     refine,
     reprojection_residuals,
     screen_start,
+    split_half_residuals,
     track_observability,
     triangulate_tracks,
 )
@@ -256,6 +257,56 @@ def test_refine_drops_a_jumping_track():
     np.testing.assert_array_equal(result.track_inliers, expected)
     assert np.all(np.isnan(result.points_base[~expected]))
     _assert_closer_than_start_and_consistent(result, scene.T_true)
+
+
+def _slide(scene: Scene, motion: int, k: int, distance: float) -> int:
+    """Make track k of a motion slide ``distance`` m over its link during the sweep, against the turn (its noise
+    kept): a corner that follows an outline or a highlight. Returns the track's index in the scene."""
+    axis, pivot, tracks = scene.motions[motion]
+    uv, delta = tracks[k]
+    index = motion * len(tracks) + k
+    p0 = scene.points[index]
+    along = np.cross(axis, p0 - pivot)
+    along /= np.linalg.norm(along)
+    turns = Rotation.from_rotvec(np.outer(delta, axis))
+    R, t = scene.T_true[:3, :3], scene.T_true[:3, 3]
+    fixed = project_normalized((turns.apply(p0 - pivot) + pivot) @ R.T + t)
+    sliding = p0 + np.outer(np.linspace(0.0, 1.0, delta.size), along) * distance
+    moved = project_normalized((turns.apply(sliding - pivot) + pivot) @ R.T + t)
+    scene.motions[motion] = (axis, pivot, [*tracks[:k], (moved + (uv - fixed), delta), *tracks[k + 1:]])
+    return index
+
+
+def test_split_half_residuals_vanish_for_fixed_points_and_grow_with_a_slide():
+    for distance in (0.01, 0.02):
+        scene = _make_scene(13)
+        slider = _slide(scene, 1, 2, distance)
+        split = split_half_residuals(build_track_set(scene.motions, FOCAL), scene.T_true)
+        assert np.max(np.delete(split, slider)) < 1e-8  # noise-free fixed points: one point fits both halves
+        # 1 cm of slide over a 20-frame sweep misses the other half by ~2 px (measured 2.08), twice that for 2 cm.
+        assert split[slider] == pytest.approx(2.08 * distance / 0.01, rel=0.1)
+
+
+def test_split_half_residuals_leave_short_tracks_untested():
+    scene = _make_scene(13, n_frames=7)  # halves of 3 and 4 frames: fewer than SPLIT_MIN_FRAMES in one
+    assert np.all(np.isnan(split_half_residuals(build_track_set(scene.motions, FOCAL), scene.T_true)))
+
+
+def test_refine_with_max_split_drops_a_slow_slide_the_outlier_bound_keeps():
+    scene = _make_scene(11, **NOISY_SCENE)
+    slider = _slide(scene, 2, 3, 0.005)
+    tracks = build_track_set(scene.motions, FOCAL)
+    T_init = _start_pose(scene.T_true, 12)
+    assert np.all(refine(tracks, T_init).track_inliers)  # 5 mm over the sweep is within the residual bound
+    split = split_half_residuals(tracks, scene.T_true)
+    assert split[slider] > 2.0 and np.max(np.delete(split, slider)) < 1.5  # at 0.5 px noise
+    result = refine(tracks, T_init, RefinementConfig(max_split_px=1.8))
+    expected = np.ones(tracks.n_tracks, dtype=bool)
+    expected[slider] = False
+    np.testing.assert_array_equal(result.track_inliers, expected)
+    _assert_closer_than_start_and_consistent(result, scene.T_true)
+    with pytest.raises(InvalidInputError, match="max_split_px"):
+        RefinementConfig(max_split_px=0.0)
 
 
 def test_reprojection_residuals_vanish_at_truth_and_show_a_jump():

@@ -31,6 +31,7 @@ from tests.solver.test_refinement import (
     NOISY_SCENE,
     _camera_points,
     _make_scene,
+    _slide,
     _start_pose,
     _timed_scene,
 )
@@ -242,6 +243,17 @@ def test_an_increment_drops_a_jumping_track_of_the_new_motion():
     first = refine(old, _start_pose(scene.T_true, 24))
     inc = refine_increment(new, first.T_camera_base, first.summaries, first.robust_sigma_px)
     np.testing.assert_array_equal(inc.track_inliers, [True, True, False, True, True, True])
+
+
+def test_an_increment_with_max_split_drops_a_slow_slide_of_the_new_motion():
+    scene = _make_scene(23, n_motions=7, n_tracks=6, n_frames=30, noise_px=0.5)
+    _slide(scene, 6, 0, 0.01)  # its split-half residual 2.7 px, the others' 0.65-1.21 px at 0.5 px noise
+    old, new, _ = _split(scene.motions, 6)
+    config = RefinementConfig(max_split_px=1.8)
+    first = refine(old, _start_pose(scene.T_true, 24), config)
+    assert np.all(refine_increment(new, first.T_camera_base, first.summaries, first.robust_sigma_px).track_inliers)
+    inc = refine_increment(new, first.T_camera_base, first.summaries, first.robust_sigma_px, config)
+    np.testing.assert_array_equal(inc.track_inliers, [False, True, True, True, True, True])
 
 
 def _episode(incremental: bool, n: int = 10) -> Calibrator:
