@@ -146,8 +146,9 @@ class RefinementConfig:
             3.31 (3.09) -> 0.36 (5.63), 0.92 (2.90), 4.64 (8.02), 3.20 (2.84) mm: usable 0 -> 2 of 4; realistic
             Panda and iiwa 720p pose 0 4.62 -> 6.64 and 3.95 -> 4.50 mm, xArm 6 1080p poses 1 and 6 0.72 -> 0.56
             and 0.26 -> 0.26 mm; clean painted Panda 1080p poses 0-3 unchanged (0.35, 0.01, 0.19, 0.08 mm); at
-            2 px as-shipped 1.09, 0.22, 6.29, 3.37 mm, none usable. Better on the smoothest surfaces, worse on two
-            realistic runs of three: off.
+            2 px as-shipped 1.09, 0.22, 6.29, 3.37 mm, none usable; at 1.5 px 0.57, 0.78, 6.92, 3.02 mm, none
+            usable, realistic Panda and iiwa 720p 4.77 and 6.63 mm. Not monotonic in the threshold, worse on two
+            realistic runs of three: within what track choice moves these runs by, so off.
     """
 
     cauchy_scale_px: float = 1.0
