@@ -1133,7 +1133,7 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     res = sol.fun[:2 * sub.uv.shape[0]].reshape(-1, 2)
     sigma = robust_sigma(res)
     good = agreeing_tracks(sub, res, sigma, config) & split_agreeing_tracks(
-        _turned_by_offset(sub, float(x[6])) if estimate else sub, T, config)
+        sub, T, config, float(x[6]) if estimate else None)
     if good.sum() < 2:
         raise InsufficientMotionsError("fewer than two tracks agree with the refined pose")
     if config.free_rates == "tested":
@@ -1219,7 +1219,7 @@ def refine_increment(tracks: TrackSet, T0: FloatArray, earlier: Sequence[MotionS
     sigma_new = robust_sigma(res)
     sigma = float(np.sqrt((n_old * sigma_px**2 + res.size * sigma_new**2) / (n_old + res.size)))
     good = agreeing_tracks(sub, res, sigma, config) & split_agreeing_tracks(
-        _turned_by_offset(sub, float(x[6])) if estimate else sub, T, config)
+        sub, T, config, float(x[6]) if estimate else None)
     if good.sum() < 1:
         raise InsufficientMotionsError("no new track agrees with the refined pose")
     if config.free_rates == "tested":
@@ -1482,10 +1482,16 @@ def split_half_residuals(tracks: TrackSet, T_camera_base: FloatArray) -> FloatAr
     return np.where(np.isnan(out).any(axis=0), np.nan, out.max(axis=0))
 
 
-def split_agreeing_tracks(tracks: TrackSet, T_camera_base: FloatArray, config: RefinementConfig) -> NDArray[np.bool_]:
-    """(T,) bool: the tracks ``RefinementConfig.max_split_px`` keeps (all when it is None; untested ones too)."""
+def split_agreeing_tracks(tracks: TrackSet, T_camera_base: FloatArray, config: RefinementConfig,
+                          time_offset_s: float | None = None) -> NDArray[np.bool_]:
+    """(T,) bool: the tracks ``RefinementConfig.max_split_px`` keeps (all when it is None; untested ones too).
+
+    With ``time_offset_s`` (s) the observations are turned by it first (``_turned_by_offset``), only when tested.
+    """
     if config.max_split_px is None:
         return np.ones(tracks.n_tracks, dtype=bool)
+    if time_offset_s is not None:
+        tracks = _turned_by_offset(tracks, time_offset_s)
     split = split_half_residuals(tracks, T_camera_base)
     return ~(split > config.max_split_px)  # NaN (not tested) keeps the track
 
