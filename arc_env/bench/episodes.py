@@ -46,7 +46,9 @@ import argparse
 import json
 import multiprocessing
 import os
+import signal
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -384,6 +386,37 @@ _WORKER_THREADS = {"LP_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_
                    "MKL_NUM_THREADS": "1"}
 
 
+def worker_pool(workers: int) -> ProcessPoolExecutor:
+    """A pool of ``workers`` spawned processes that end with this one (``die_with_parent``).
+
+    Without it, a study stopped by SIGTERM to its parent alone (``kill``, ``pkill -f``) left its workers
+    rendering the episodes they had, for nothing: only the parent stores records.
+    """
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=die_with_parent, initargs=(os.getpid(),))
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """Ask the kernel to send this process SIGTERM when its parent ends (Linux ``PR_SET_PDEATHSIG``).
+
+    ``parent_pid`` is the parent's pid as the parent saw it: when it has already ended (this process
+    was re-parented before the request), this process ends at once. Elsewhere than on Linux a no-op.
+    """
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0) != 0:
+        return  # not granted: the worker lives on as before
+    if os.getppid() != parent_pid:
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+#: prctl's option number that sets the signal sent on the parent's death (linux/prctl.h).
+_PR_SET_PDEATHSIG = 1
+
+
 def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None, workers: int = 1,
                  on_record: Callable[[dict[str, Any], bool], None] | None = None,
                  ray_address: str | None = None) -> dict[EpisodeSpec, dict[str, Any]]:
@@ -432,7 +465,7 @@ def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None
         saved = {k: os.environ.get(k) for k in _WORKER_THREADS}
         os.environ.update(_WORKER_THREADS)  # inherited by the spawned workers
         try:
-            with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            with worker_pool(workers) as pool:
                 futures = [pool.submit(run_episode, spec) for spec in todo]
                 for future in as_completed(futures):
                     finish(future.result())

@@ -1,13 +1,20 @@
 """arc_env.episodes: one benchmark episode runner and its resumable store."""
 
 import json
+import os
+import signal
+import subprocess
 import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from arc_env.bench.episodes import EpisodeSpec, EpisodeStore, commits_used, padded_curve, run_episodes
 from solver.errors import InvalidInputError
+
+REPO = Path(__file__).resolve().parents[3]
 
 #: A small oracle episode: no rendering of frames, a few seconds.
 SPEC = EpisodeSpec("random", pose=1, seed=0, motions=3, width=480, height=270, oracle=True)
@@ -147,3 +154,51 @@ def test_ray_without_ray_installed_says_how_to_get_it(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray now raises ImportError
     with pytest.raises(InvalidInputError, match=r"pip install 'arc-calib\[ray\]'"):
         run_episodes([SPEC], ray_address="local")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_pool_workers_end_when_their_parent_is_terminated(tmp_path):
+    # A study stopped by SIGTERM to its parent alone must not leave its workers rendering for nothing.
+    script = tmp_path / "parent.py"
+    script.write_text(
+        "import os, time\n"
+        "from arc_env.bench.episodes import worker_pool\n"
+        "if __name__ == '__main__':\n"  # spawned workers import this file too
+        "    with worker_pool(2) as pool:\n"
+        "        pids = {pool.submit(os.getpid).result() for _ in range(4)}\n"
+        "        busy = [pool.submit(time.sleep, 120) for _ in range(2)]\n"
+        "        print(' '.join(map(str, sorted(pids))), flush=True)\n"
+        "        time.sleep(120)\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        workers = [int(p) for p in parent.stdout.readline().split()]
+        assert workers and all(_alive(p) for p in workers)
+        parent.send_signal(signal.SIGTERM)
+        parent.wait(timeout=30)
+        deadline = time.monotonic() + 30
+        while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not any(_alive(p) for p in workers)
+    finally:
+        parent.kill()
+        parent.wait()
+
+
+def test_a_worker_whose_parent_is_gone_ends_at_once():
+    # die_with_parent's race: re-parented before the request took effect -> it ends itself.
+    child = subprocess.Popen([sys.executable, "-c",
+                              "import sys, time; sys.path.insert(0, sys.argv[1])\n"
+                              "from arc_env.bench.episodes import die_with_parent\n"
+                              "die_with_parent(-1)\n"  # no process's pid: as if the parent had died
+                              "time.sleep(60)\n", str(REPO)])
+    assert child.wait(timeout=30) == -signal.SIGTERM
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
