@@ -3,7 +3,8 @@
 Pure numpy/scipy/OpenCV; never imports MuJoCo. Pipeline modules, in the paper's order:
 ``conics`` -> ``circle_normals`` -> ``reference_lines`` (assembled per motion in ``motion``) ->
 ``calibration`` (linear, with pruning) -> ``refinement`` (bundle adjustment) -> ``convergence``;
-``pipeline.Calibrator`` runs them incrementally. Conventions live in ``frames``.
+``pipeline.Calibrator`` runs them incrementally. Conventions live in ``frames``. Beside them, ``outlines`` fits
+the pose to the robot's occluding contours against the image's edges (not yet part of the Calibrator).
 """
 
 from solver.calibration import (
