@@ -26,13 +26,11 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 from arc_env.bench.episodes import EpisodeSpec, make_env  # noqa: E402
-from arc_env.bench.tracking_truth import MotionTruth, motion_truth, summary  # noqa: E402
+from arc_env.bench.tracking_truth import MotionTruth, motion_truth, rendered_motions, summary  # noqa: E402
 from arc_env.robot.library import ROBOT_NAMES  # noqa: E402
 from arc_env.robot.session import SeenMotion  # noqa: E402
 from arc_env.robot.tracking import TrackerConfig, track_keypoints  # noqa: E402
 from arc_env.sim.imaging import APPEARANCES, REALISMS  # noqa: E402
-from planners.random_planner import RandomPlanner  # noqa: E402
-from solver.errors import ArcCalibError  # noqa: E402
 
 #: "default": the tracker as shipped (the affine patch fit on a window weighted by a 4 px Gaussian,
 #: ``TrackerConfig.window_sigma_px``, with the whole window's check); "affine": on a uniform window;
@@ -46,22 +44,6 @@ SETTINGS = {"default": TrackerConfig(), "affine": TrackerConfig(window_sigma_px=
             "gaussian-weighted-check": TrackerConfig(max_window_dissimilarity=1e9),
             "quadratic": TrackerConfig(quadratic_warp=True, window_sigma_px=0.0),
             "still-window": TrackerConfig(max_static_fraction=0.6)}
-
-
-def rendered_motions(env: Any, obs: Any, spec: EpisodeSpec) -> list[SeenMotion]:  # noqa: ANN401 (sim env)
-    """Run ``spec``'s episode in ``env`` (reset, first observation ``obs``) with its tracker: the seen motions."""
-    seen: list[SeenMotion] = []
-    env.session.observer = lambda motion: seen.append(motion) if motion.frames is not None else None
-    planner = RandomPlanner(env.session, np.random.default_rng(spec.rng_seed))
-    while len(seen) < spec.motions:
-        try:
-            action = planner.plan(obs)
-        except ArcCalibError:
-            break
-        obs, _, _, truncated, info = env.step(action)
-        if info["refused"] and truncated:
-            break
-    return seen
 
 
 def score(scene: Any, seen: list[SeenMotion], tracker: TrackerConfig) -> list[MotionTruth]:  # noqa: ANN401

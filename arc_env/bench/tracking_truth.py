@@ -20,7 +20,9 @@ from typing import Any
 import numpy as np
 
 from arc_env.robot.session import SeenMotion
+from planners.random_planner import RandomPlanner
 from solver.arrays import FloatArray
+from solver.errors import ArcCalibError
 from solver.observations import KeypointTrack
 
 #: Tracks nearer the truth than this count towards ``chord_scale``; px.
@@ -93,3 +95,19 @@ def summary(motions: list[MotionTruth]) -> dict[str, Any]:
     return {"motions": len(motions), "tracks_median": median("tracks"), "on_links_median": median("on_links"),
             "end_error_px_median": median("end_error_px"), "within_1px_median": median("within_1px"),
             "chord_scale_median": median("chord_scale"), "per_motion": [asdict(m) for m in motions]}
+
+
+def rendered_motions(env: Any, obs: Any, spec: Any) -> list[SeenMotion]:  # noqa: ANN401 (sim env, EpisodeSpec)
+    """Run ``spec``'s episode in ``env`` (reset, first observation ``obs``) with its tracker: the seen motions."""
+    seen: list[SeenMotion] = []
+    env.session.observer = lambda motion: seen.append(motion) if motion.frames is not None else None
+    planner = RandomPlanner(env.session, np.random.default_rng(spec.rng_seed))
+    while len(seen) < spec.motions:
+        try:
+            action = planner.plan(obs)
+        except ArcCalibError:
+            break
+        obs, _, _, truncated, info = env.step(action)
+        if info["refused"] and truncated:
+            break
+    return seen
