@@ -11,7 +11,7 @@ either), rendered at the pose being tried (``Scene.depth`` and ``Scene.robot_mas
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import cv2
@@ -101,7 +101,8 @@ def run_outline_episode(spec: EpisodeSpec, frames_per_motion: int = 3, stride: i
         start = pose_difference(state.T_camera_base, T_true)
         views, edges = [], []
         for motion in seen:
-            assert motion.frames is not None  # rendered_motions keeps rendered ones only
+            if motion.frames is None:  # rendered_motions keeps the rendered ones only
+                continue
             n = len(motion.frames)
             for k in sorted({int(i) for i in np.linspace(0, n - 1, frames_per_motion).round()}):
                 views.append((motion.q_start, motion.joint, float(motion.deltas[k])))
@@ -130,6 +131,4 @@ def run_outline_episode(spec: EpisodeSpec, frames_per_motion: int = 3, stride: i
 
 def run_record(run: OutlineRun) -> dict[str, Any]:
     """``run`` as JSON-ready values (the spec as its fields)."""
-    from dataclasses import asdict
-
     return {**asdict(run), "spec": asdict(run.spec)}

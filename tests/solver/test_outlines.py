@@ -62,14 +62,16 @@ def _contour(T: np.ndarray, spheres, n: int = 720) -> ContourPoints:
         t = np.linspace(0, 2 * np.pi, n, endpoint=False)
         X = middle + rho * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
         normal = (X - c) / radius  # the sphere's outward normal there, across the ray
-        for P, shifted in ((X, X + 1e-4 * normal),):
-            px = P[:, :2] / P[:, 2:] * [K[0, 0], K[1, 1]]
-            qx = shifted[:, :2] / shifted[:, 2:] * [K[0, 0], K[1, 1]]
-            step = qx - px
-            outward.append(step / np.linalg.norm(step, axis=1, keepdims=True))
+        step = _image(X + 1e-4 * normal) - _image(X)
+        outward.append(step / np.linalg.norm(step, axis=1, keepdims=True))
         points.append((X - T[:3, 3]) @ T[:3, :3])
-    # hidden parts: a point behind another sphere (the test's spheres do not overlap in the image) are none
+    # the test's spheres do not overlap in the image: no contour point is hidden
     return ContourPoints(np.concatenate(points), np.concatenate(outward))
+
+
+def _image(points_cam: np.ndarray) -> np.ndarray:
+    """(N, 2) pixels of camera-frame points (N, 3)."""
+    return points_cam[:, :2] / points_cam[:, 2:] * [K[0, 0], K[1, 1]] + K[:2, 2]
 
 
 def _model(T: np.ndarray) -> list[ContourPoints]:
@@ -105,8 +107,7 @@ def test_contours_lie_on_the_edges_at_the_true_pose(edges):
 
 
 def _project_px(T, points_base):
-    cam = points_base @ T[:3, :3].T + T[:3, 3]
-    return cam[:, :2] / cam[:, 2:] * [K[0, 0], K[1, 1]] + K[:2, 2]
+    return _image(points_base @ T[:3, :3].T + T[:3, 3])
 
 
 @pytest.mark.parametrize("start", [np.array([2e-3, -1e-3, 1.5e-3, 3e-3, -2e-3, 8e-3]),
