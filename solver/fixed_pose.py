@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from solver.arrays import FloatArray
 from solver.errors import InvalidInputError
 from solver.frames import check_transform
-from solver.refinement import TrackSet, triangulate_tracks
+from solver.refinement import TrackSet, track_camera_points, track_pixel_residuals, triangulate_tracks
 
 #: Points nearer the camera than this (m) at any frame are not fitted (``FixedPoseFit.ok`` False).
 MIN_DEPTH_M = 0.01
@@ -43,19 +43,6 @@ class FixedPoseFit:
     residuals: FloatArray
     track_rms_px: FloatArray
     ok: NDArray[np.bool_]
-
-
-def _camera_points(tracks: TrackSet, T_camera_base: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """(P, 3) camera points of y (T, 3) and M_k (P, 3, 3)."""
-    R, t = T_camera_base[:3, :3], T_camera_base[:3, 3]
-    M = np.einsum("ij,pjk->pik", R, tracks.rot)
-    c = tracks.pivot[tracks.track] @ R.T + t
-    return np.einsum("pij,pj->pi", M, y[tracks.track]) + c, M
-
-
-def _residuals(tracks: TrackSet, pc: FloatArray) -> FloatArray:
-    """(P, 2) px: projections of camera points pc (P, 3) minus the observations."""
-    return (pc[:, :2] / pc[:, 2:] - tracks.uv) * tracks.focal
 
 
 def _track_cost(tracks: TrackSet, r: FloatArray) -> FloatArray:
@@ -85,9 +72,9 @@ def fit_points(tracks: TrackSet, T_camera_base: FloatArray, iterations: int = 15
     n = tracks.n_tracks
     points, ok = triangulate_tracks(tracks, T_camera_base)
     y = points - tracks.pivot
-    pc, M = _camera_points(tracks, T_camera_base, y)
+    pc, M = track_camera_points(tracks, T_camera_base, y)
     ok &= np.bincount(tracks.track, weights=(pc[:, 2] <= MIN_DEPTH_M).astype(float), minlength=n) == 0
-    r = _residuals(tracks, pc)
+    r = track_pixel_residuals(tracks, pc)
     cost = _track_cost(tracks, r)
     damping = np.full(n, 1e-3)
     active = ok.copy()
@@ -112,9 +99,9 @@ def fit_points(tracks: TrackSet, T_camera_base: FloatArray, iterations: int = 15
         step = -np.linalg.solve(A, Jtr[..., None])[..., 0]
         step[~active] = 0.0
         y_try = y + step
-        pc_try, _ = _camera_points(tracks, T_camera_base, y_try)
+        pc_try, _ = track_camera_points(tracks, T_camera_base, y_try)
         front = np.bincount(tracks.track, weights=(pc_try[:, 2] <= MIN_DEPTH_M).astype(float), minlength=n) == 0
-        r_try = _residuals(tracks, np.where(pc_try[:, 2:] > MIN_DEPTH_M, pc_try, pc))
+        r_try = track_pixel_residuals(tracks, np.where(pc_try[:, 2:] > MIN_DEPTH_M, pc_try, pc))
         cost_try = _track_cost(tracks, r_try)
         better = active & front & (cost_try < cost)
         converged = better & (cost - cost_try <= 1e-10 * np.maximum(cost, 1e-300))

@@ -243,8 +243,6 @@ def _pair(T_camera_base: FloatArray, contours: Sequence[ContourPoints], edges: S
         keep = visible & found & (np.abs(along) >= cos_min)
         parts.append((contour.points_base[keep], image.points[idx[keep]],
                       normals[keep] * np.sign(along[keep])[:, None]))
-    if not parts:
-        return _Pairs(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)))
     return _Pairs(*(np.concatenate(p) for p in zip(*parts, strict=True)))
 
 

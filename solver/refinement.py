@@ -283,6 +283,22 @@ def triangulate_tracks(tracks: TrackSet, T_camera_base: FloatArray) -> tuple[Flo
     return points, ok
 
 
+def track_camera_points(tracks: TrackSet, T_camera_base: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """(P, 3) m: every observation's camera point of its track's y = p0 - d_b (T, 3) m, and M_k = R Rot_k (P, 3, 3).
+
+    Notation as in ``triangulate_tracks``: the camera point at frame k is M_k y + (R d_b + t).
+    """
+    R, t = T_camera_base[:3, :3], T_camera_base[:3, 3]
+    M = np.einsum("ij,pjk->pik", R, tracks.rot)
+    c = tracks.pivot[tracks.track] @ R.T + t
+    return np.einsum("pij,pj->pi", M, y[tracks.track]) + c, M
+
+
+def track_pixel_residuals(tracks: TrackSet, pc: FloatArray) -> FloatArray:
+    """(P, 2) px: the projections of camera points pc (P, 3) m minus the observations."""
+    return (pc[:, :2] / pc[:, 2:] - tracks.uv) * tracks.focal
+
+
 def _left_jacobian(omega: FloatArray) -> FloatArray:
     theta = float(np.linalg.norm(omega))
     W = skew(omega)
@@ -1461,25 +1477,25 @@ def split_half_residuals(tracks: TrackSet, T_camera_base: FloatArray) -> FloatAr
     rank = np.arange(tracks.track.size) - starts[tracks.track]  # each observation's place in its track
     first = rank < (counts // 2)[tracks.track]
     testable = counts // 2 >= SPLIT_MIN_FRAMES
-    R, t = T_camera_base[:3, :3], T_camera_base[:3, 3]
     out = np.full((2, tracks.n_tracks), np.nan)
     for side, (fit, other) in enumerate(((first, ~first), (~first, first))):
-        half = replace(tracks, uv=tracks.uv[fit], track=tracks.track[fit], rot=tracks.rot[fit],
-                       delta=None if tracks.delta is None else tracks.delta[fit],
-                       velocity=None if tracks.velocity is None else tracks.velocity[fit], free_rates=None)
-        points, ok = triangulate_tracks(half, T_camera_base)
-        tr = tracks.track[other]
-        pivot = tracks.pivot[tr]
-        camera = np.einsum("pij,pj->pi", tracks.rot[other], points[tr] - pivot) + pivot
-        camera = camera @ R.T + t
-        depth = camera[:, 2]
+        points, ok = triangulate_tracks(_observations(tracks, fit), T_camera_base)
+        seen = _observations(tracks, other)
+        camera, _ = track_camera_points(seen, T_camera_base, points - tracks.pivot)
         with np.errstate(divide="ignore", invalid="ignore"):
-            error = (camera[:, :2] / depth[:, None] - tracks.uv[other]) * tracks.focal
-        d2 = np.where(depth > 0, np.sum(error**2, axis=1), np.inf)
-        n = np.bincount(tr, minlength=tracks.n_tracks)
-        rms = np.sqrt(np.bincount(tr, weights=d2, minlength=tracks.n_tracks) / np.maximum(n, 1))
+            error = track_pixel_residuals(seen, camera)
+        d2 = np.where(camera[:, 2] > 0, np.sum(error**2, axis=1), np.inf)
+        n = np.bincount(seen.track, minlength=tracks.n_tracks)
+        rms = np.sqrt(np.bincount(seen.track, weights=d2, minlength=tracks.n_tracks) / np.maximum(n, 1))
         out[side] = np.where(ok & testable & (n > 0), rms, np.nan)
     return np.where(np.isnan(out).any(axis=0), np.nan, out.max(axis=0))
+
+
+def _observations(tracks: TrackSet, keep: NDArray[np.bool_]) -> TrackSet:
+    """``tracks`` with only the observations keep (P,) bool; every track keeps its index, pivot and axis."""
+    return replace(tracks, uv=tracks.uv[keep], track=tracks.track[keep], rot=tracks.rot[keep],
+                   delta=None if tracks.delta is None else tracks.delta[keep],
+                   velocity=None if tracks.velocity is None else tracks.velocity[keep], free_rates=None)
 
 
 def split_agreeing_tracks(tracks: TrackSet, T_camera_base: FloatArray, config: RefinementConfig,
