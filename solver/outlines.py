@@ -38,8 +38,9 @@ from solver.errors import InsufficientMotionsError, InvalidInputError
 from solver.frames import check_transform, perturb
 from solver.observations import CameraIntrinsics
 
-__all__ = ["ContourModel", "ContourPoints", "ImageEdges", "OutlineConfig", "OutlineFit", "contour_from_depth",
-           "fit_outline_pose", "image_edges", "outline_residuals"]
+__all__ = ["ContourModel", "ContourPoints", "EdgePairs", "ImageEdges", "OutlineConfig", "OutlineFit",
+           "contour_from_depth", "fit_outline_pose", "image_edges", "outline_residuals", "pair_contour_points",
+           "project_base_points"]
 
 
 @dataclass(frozen=True)
@@ -135,12 +136,15 @@ def contour_from_depth(depth: FloatArray, mask: NDArray[np.bool_], T_camera_base
                        min_step_m: float = 0.03, stride: int = 1) -> ContourPoints:
     """A model's occluding contour from its depth image rendered at T_camera_base.
 
-    A pixel of the model (``mask``) whose 4-neighbour is at least ``min_step_m`` farther (or off the model:
-    the background's depth) occludes it: its contour point lies on the boundary between the two pixel
-    centres, at the near pixel's depth, and its outward direction points to the far one.
+    A pixel of the model (``mask``) whose 4-neighbour is at least ``min_step_m`` farther (another part of the
+    model, or what lies behind it: the background's depth, +inf or NaN where nothing is) occludes it: its contour
+    point lies on the boundary between the two pixel centres, at the near pixel's depth, and its outward
+    direction points to the far one. Only model pixels make contour points: a background that is itself near
+    (the floor under a robot's foot) makes none.
 
     Args:
-        depth: (H, W) float, metres along the optical axis, as rendered (pinhole ``K``, no distortion).
+        depth: (H, W) float, metres along the optical axis, as rendered (pinhole ``K``, no distortion); off the
+            model, the background's (+inf or NaN: nothing).
         mask: (H, W) bool: the pixels that show the model.
         T_camera_base: (4, 4) float64: the pose it was rendered from.
         K: (3, 3) float64: the rendering's pinhole matrix (pixel centres at integer coordinates).
@@ -154,7 +158,7 @@ def contour_from_depth(depth: FloatArray, mask: NDArray[np.bool_], T_camera_base
     if stride < 1 or min_step_m <= 0:
         raise InvalidInputError(f"need stride >= 1 and min_step_m > 0, got {stride}, {min_step_m}")
     T = check_transform(np.asarray(T_camera_base, dtype=np.float64), "T_camera_base")
-    far = np.where(mask, depth, np.inf)
+    far = np.where(np.isnan(depth), np.inf, depth)
     us, vs, zs, outs = [], [], [], []
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         neighbour = np.full_like(far, -np.inf)  # image borders: no neighbour, no contour
@@ -224,29 +228,42 @@ class OutlineFit:
 
 
 @dataclass(frozen=True)
-class _Pairs:
-    points_base: FloatArray  # (P, 3) m
-    edge_points: FloatArray  # (P, 2) px
-    normals: FloatArray  # (P, 2): the edges' normals, turned outward
+class EdgePairs:
+    """Contour points paired with image edges (``pair_contour_points``).
+
+    Attributes:
+        points_base: (P, 3) float64, metres: contour points in the base frame.
+        edge_points: (P, 2) float64, pixels: their paired edge points.
+        normals: (P, 2) float64: the edges' unit normals, turned outward (the contour point's outward side).
+    """
+
+    points_base: FloatArray
+    edge_points: FloatArray
+    normals: FloatArray
 
 
-def _pair(T_camera_base: FloatArray, contours: Sequence[ContourPoints], edges: Sequence[ImageEdges],
-          intrinsics: CameraIntrinsics, config: OutlineConfig) -> _Pairs:
-    """Every contour point paired with its nearest image edge of a matching direction."""
+def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoints], edges: Sequence[ImageEdges],
+                        intrinsics: CameraIntrinsics, config: OutlineConfig) -> EdgePairs:
+    """Every contour point, seen from T_camera_base (4, 4), paired with its nearest image edge of a matching direction.
+
+    ``contours`` and ``edges`` run over the same images; points further than ``config.max_match_px`` from every
+    edge, or whose nearest edge's normal is more than ``config.max_normal_angle_deg`` from their outward
+    direction, or behind the camera, are left out.
+    """
     cos_min = np.cos(np.radians(config.max_normal_angle_deg))
     parts: list[tuple[FloatArray, FloatArray, FloatArray]] = []
     for contour, image in zip(contours, edges, strict=True):
-        pixels, visible = _project(T_camera_base, contour.points_base, intrinsics)
+        pixels, visible = project_base_points(T_camera_base, contour.points_base, intrinsics)
         idx, found = image.nearest(pixels, config.max_match_px)
         normals = image.normals[idx]
         along = np.sum(normals * contour.outward, axis=1)
         keep = visible & found & (np.abs(along) >= cos_min)
         parts.append((contour.points_base[keep], image.points[idx[keep]],
                       normals[keep] * np.sign(along[keep])[:, None]))
-    return _Pairs(*(np.concatenate(p) for p in zip(*parts, strict=True)))
+    return EdgePairs(*(np.concatenate(p) for p in zip(*parts, strict=True)))
 
 
-def _project(T_camera_base: FloatArray, points_base: FloatArray, intrinsics: CameraIntrinsics
+def project_base_points(T_camera_base: FloatArray, points_base: FloatArray, intrinsics: CameraIntrinsics
              ) -> tuple[FloatArray, NDArray[np.bool_]]:
     """(N, 2) pixels of base points (N, 3) m, and (N,) whether each is in front of the camera."""
     cam = points_base @ T_camera_base[:3, :3].T + T_camera_base[:3, 3]
@@ -267,7 +284,7 @@ def outline_residuals(T_camera_base: FloatArray, points_base: FloatArray, edge_p
         normals: (P, 2) float64: the edges' unit normals (``fit_outline_pose`` turns them outward).
         intrinsics: the camera.
     """
-    pixels, _ = _project(T_camera_base, points_base, intrinsics)
+    pixels, _ = project_base_points(T_camera_base, points_base, intrinsics)
     return np.sum((pixels - edge_points) * normals, axis=1)
 
 
@@ -292,21 +309,21 @@ def fit_outline_pose(T_init: FloatArray, edges: Sequence[ImageEdges], model: Con
     T = check_transform(np.asarray(T_init, dtype=np.float64), "T_init")
     if not edges:
         raise InvalidInputError("fit_outline_pose needs at least one image's edges")
-    pairs = _Pairs(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)))
+    pairs = EdgePairs(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)))
     residual = np.zeros(0)
     for _ in range(config.renders):
         contours = list(model(T))
         if len(contours) != len(edges):
             raise InvalidInputError(f"the contour model gave {len(contours)} contours for {len(edges)} images")
         for _ in range(config.associations):
-            pairs = _pair(T, contours, edges, intrinsics, config)
+            pairs = pair_contour_points(T, contours, edges, intrinsics, config)
             if len(pairs.points_base) < config.min_pairs:
                 raise InsufficientMotionsError(
                     f"only {len(pairs.points_base)} contour points lie within {config.max_match_px} px of an image "
                     f"edge of their direction (at least {config.min_pairs} needed): the start is too far off, or "
                     "the outlines are not in the images")
 
-            def residuals(xi: FloatArray, T0: FloatArray = T, p: _Pairs = pairs) -> FloatArray:
+            def residuals(xi: FloatArray, T0: FloatArray = T, p: EdgePairs = pairs) -> FloatArray:
                 return outline_residuals(perturb(T0, xi), p.points_base, p.edge_points, p.normals, intrinsics)
 
             solution = least_squares(residuals, np.zeros(6), loss="cauchy", f_scale=config.cauchy_px,

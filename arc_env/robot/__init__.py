@@ -1,4 +1,5 @@
-"""What a real robot needs, and nothing of the simulator: never gymnasium, never a GL context.
+"""What a real robot needs, and nothing of the simulator: never gymnasium; a GL context only for
+the outline stage's contours (``contours``), created at its first use.
 
 ``model`` (the robot from its MJCF or URDF: kinematics and geometry), ``tracking`` (keypoint tracks),
 ``recording`` (the recording format), ``session`` (the one calibration loop), ``driver`` (the

@@ -34,11 +34,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from arc_env.robot.model import RobotModel, RobotSource, attach_robot, compile_spec, robot_spec
+from arc_env.robot.rendering import create_renderer
 from arc_env.sim.camera import fovy_from_intrinsics, mujoco_camera_from_optical
 from arc_env.sim.imaging import APPEARANCES, CameraEffects
 from arc_env.sim.marker_board import MarkerBoard, add_marker_board, restore_board_material
 from arc_env.sim.marks import MARK_GROUP, SCREWS, SEAMS, Marks, add_marks, dress, plan_marks
-from arc_env.sim.rendering import create_renderer
 from solver.arrays import FloatArray, ImageArray, MaskArray
 from solver.errors import InvalidInputError
 from solver.frames import check_transform

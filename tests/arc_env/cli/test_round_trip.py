@@ -222,7 +222,7 @@ def test_calibrate_needs_no_gl_context(recording, tmp_path):
     root = Path(__file__).resolve().parents[3]
     # the backend really cannot start: building a renderer fails
     probe = ("from arc_env.sim.scene import Scene, SceneConfig\n"
-             "from arc_env.sim.rendering import RenderingError\n"
+             "from arc_env.robot.rendering import RenderingError\n"
              "try:\n    Scene(SceneConfig(width=64, height=48)).render()\nexcept RenderingError:\n    print('no GL')")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=root, env=_without_gl(),
                          timeout=120)

@@ -1,0 +1,137 @@
+"""The robot's occluding contours from its own model file, for the outline stage (``solver.outline_fusion``).
+
+``RobotContours`` renders the robot alone (its MJCF or URDF as ``RobotModel.load`` compiles it: the drawn geoms,
+no scene) with MuJoCo's offscreen renderer, from a camera at a given ``T_camera_base`` with the recording's
+focal length and principal point, and takes the occluding contour from the depth image
+(``solver.outlines.contour_from_depth``). What is behind the robot is unknown on a real recording, except the
+plane it stands on: the base frame's support plane (the world's z = 0, where ``RobotModel.load`` puts the
+ground) is filled in analytically, so the base's foot on the floor is not taken for an outline.
+
+A GL context is created at the first call (EGL or OSMesa: ``arc_env.robot.rendering``), on the calling thread; a
+call from another thread gets a renderer of its own. Nothing is rendered at import.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import mujoco
+import numpy as np
+
+from arc_env.robot.model import RobotModel
+from arc_env.robot.rendering import create_renderer
+from solver.arrays import FloatArray
+from solver.errors import InvalidInputError
+from solver.frames import check_transform
+from solver.observations import CameraIntrinsics
+from solver.outlines import ContourPoints, contour_from_depth
+
+__all__ = ["RobotContours"]
+
+
+class RobotContours:
+    """The robot's occluding contour at a configuration, seen from a camera pose (a ``ContourRenderer``).
+
+    Args:
+        robot: the robot (its source is compiled again, alone: the caller's model and state are not touched).
+        intrinsics: the camera; rendered as a pinhole with its principal point and the focal length fy (MuJoCo's
+            pixels are square; the contour is a set of 3-D points, so the recording's own projection, with its fx
+            and lens distortion, applies when they are paired with the image's edges).
+        stride: keep every stride-th contour point of each direction.
+        min_step_m: the smallest depth step that makes an occluding contour, metres.
+        ground: fill the support plane in behind the robot.
+    """
+
+    def __init__(self, robot: RobotModel, intrinsics: CameraIntrinsics, stride: int = 3, min_step_m: float = 0.03,
+                 ground: bool = True):
+        if stride < 1 or not min_step_m > 0:
+            raise InvalidInputError(f"need stride >= 1 and min_step_m > 0, got {stride}, {min_step_m}")
+        self.robot = RobotModel.load(robot.source, ground=False)
+        self.intrinsics = intrinsics
+        self.stride = stride
+        self.min_step_m = min_step_m
+        self.ground = ground
+        fy, cx, cy = intrinsics.K[1, 1], intrinsics.K[0, 2], intrinsics.K[1, 2]
+        self.K_render = np.array([[fy, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        m = self.robot.model
+        m.vis.global_.offwidth = max(int(m.vis.global_.offwidth), intrinsics.width)
+        m.vis.global_.offheight = max(int(m.vis.global_.offheight), intrinsics.height)
+        self._robot_geom = np.zeros(m.ngeom + 1, dtype=bool)
+        self._robot_geom[:-1] = np.isin(m.geom_bodyid, self.robot.robot_bodies) & (m.geom_group <= 2)
+        self._local = threading.local()
+
+    def __call__(self, T_camera_base: FloatArray, q: FloatArray) -> ContourPoints:
+        """The contour with the arm at q (n,) rad seen from T_camera_base (4, 4)."""
+        T = check_transform(np.asarray(T_camera_base, dtype=np.float64), "T_camera_base")
+        depth, mask = self.depth_and_mask(T, q)
+        return contour_from_depth(depth, mask, T, self.K_render, self.min_step_m, self.stride)
+
+    def depth_and_mask(self, T_camera_base: FloatArray, q: FloatArray) -> tuple[FloatArray, np.ndarray]:
+        """The depth and the robot's pixels with the arm at q (n,) rad, the camera at T_camera_base (4, 4).
+
+        Returns:
+            (H, W) float64 depth along the optical axis, metres (behind the robot the support plane, or +inf),
+            and (H, W) bool, the robot's pixels.
+        """
+        renderer, data = self._renderer()
+        data.qpos[self.robot.qpos_adr] = self.robot.check_q(q)
+        mujoco.mj_kinematics(self.robot.model, data)
+        T_camera_world = T_camera_base @ np.linalg.inv(self.robot.T_world_base)
+        renderer.update_scene(data, mujoco.MjvCamera())
+        self._place_camera(renderer, T_camera_world)
+        renderer.enable_segmentation_rendering()
+        try:
+            seg = renderer.render()
+        finally:
+            renderer.disable_segmentation_rendering()
+        renderer.enable_depth_rendering()
+        try:
+            depth = renderer.render().astype(np.float64)
+        finally:
+            renderer.disable_depth_rendering()
+        is_geom = seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
+        ids = np.where(is_geom & (seg[..., 0] >= 0), seg[..., 0], self.robot.model.ngeom)
+        mask = self._robot_geom[ids]
+        behind = np.full(depth.shape, np.inf)
+        if self.ground:
+            behind = np.minimum(behind, self._plane_depth(T_camera_world, depth.shape))
+        return np.where(mask, depth, behind), mask
+
+    def _renderer(self) -> tuple[mujoco.Renderer, mujoco.MjData]:
+        local = self._local
+        if not hasattr(local, "renderer"):
+            local.renderer = create_renderer(self.robot.model, self.intrinsics.height, self.intrinsics.width)
+            local.data = mujoco.MjData(self.robot.model)
+        return local.renderer, local.data
+
+    def _place_camera(self, renderer: mujoco.Renderer, T_camera_world: FloatArray) -> None:
+        """Point the scene's GL camera along the optical frame with the rendering's pinhole frustum."""
+        m = self.robot.model
+        near, far = m.vis.map.znear * m.stat.extent, m.vis.map.zfar * m.stat.extent  # what Renderer's depth assumes
+        R_world_camera = T_camera_world[:3, :3].T
+        position = -R_world_camera @ T_camera_world[:3, 3]
+        f, cx, cy = self.K_render[1, 1], self.K_render[0, 2], self.K_render[1, 2]
+        w, h = self.intrinsics.width, self.intrinsics.height
+        for eye in renderer.scene.camera:
+            eye.pos[:] = position
+            eye.forward[:] = R_world_camera[:, 2]  # optical z
+            eye.up[:] = -R_world_camera[:, 1]  # optical y points down
+            eye.orthographic = 0
+            eye.frustum_near, eye.frustum_far = near, far
+            eye.frustum_center = ((w - 1) / 2 - cx) / f * near  # pixel centres at integers: edges at -0.5, W - 0.5
+            eye.frustum_width = w / 2 / f * near
+            eye.frustum_top = (cy + 0.5) / f * near
+            eye.frustum_bottom = -(h - 0.5 - cy) / f * near
+
+    def _plane_depth(self, T_camera_world: FloatArray, shape: tuple[int, ...]) -> FloatArray:
+        """(H, W) depth of the world's z = 0 plane along each pixel's ray (+inf where the ray misses it)."""
+        h, w = shape
+        f, cx, cy = self.K_render[1, 1], self.K_render[0, 2], self.K_render[1, 2]
+        R_world_camera = T_camera_world[:3, :3].T
+        height = (-R_world_camera @ T_camera_world[:3, 3])[2]
+        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+        # the world z of the ray point at depth 1: r = ((u - cx) / f, (v - cy) / f, 1) in the camera frame
+        dz = R_world_camera[2, 0] * (u - cx) / f + R_world_camera[2, 1] * (v - cy) / f + R_world_camera[2, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = -height / dz
+        return np.where(z > 0, z, np.inf)

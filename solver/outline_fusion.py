@@ -1,0 +1,309 @@
+"""The tracks' pose and the robot's outlines adjusted together, with a covariance that the outlines cannot fool.
+
+The bundle adjustment of the tracks gives a pose and its covariance; its points, marginalized out, leave on the
+pose a quadratic cost (the Schur complement's information, ``solver.refinement``). The outlines
+(``solver.outlines``) depend on the pose alone. So the joint adjustment of both is the outlines' cost plus that
+quadratic prior, over the six pose parameters: ``OutlineAdjustment.fuse``.
+
+Each image keeps the contour its model gave at the pose it was last rendered from, and is rendered again only
+when the pose has moved its contour by more than ``OutlineFusionConfig.rerender_px``: once the estimate settles,
+an update renders only the new motion's images.
+
+The outlines' covariance must not be the textbook one: thousands of contour points per image, each a pixel from
+its neighbours, share what makes them wrong (the shading of a casting moves its whole edge, a link's model
+differs from the part). Three guards:
+
+- the residuals' scatter per motion (a cluster: its images share the links' shading and the model's errors)
+  replaces the model's covariance where it is larger (a clustered sandwich, ``conservative_covariance``);
+- a common offset of every edge from the true outline, of ``OutlineFusionConfig.edge_offset_px`` 1-sigma, is a
+  consider parameter: not estimated (measured: fitting it over-corrects), its effect on the pose added to the
+  covariance. Measured on rendered realistic images, the edges of shaded castings lie about 0.24 px inside the
+  outline (``docs/realistic-imaging.md``), which leaves the outline fit 0.4-1.3 mm off along the optical axis;
+- the fused pose must agree with the tracks' (Mahalanobis distance under the sum of both covariances below
+  ``OutlineFusionConfig.max_disagreement_chi2``), else the outlines are not used and the reason is given.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import eigh
+
+from solver.arrays import FloatArray
+from solver.errors import InsufficientMotionsError, InvalidInputError
+from solver.frames import check_transform, perturb, pose_difference
+from solver.observations import CameraIntrinsics
+from solver.outlines import (
+    ContourPoints,
+    EdgePairs,
+    ImageEdges,
+    OutlineConfig,
+    outline_residuals,
+    pair_contour_points,
+    project_base_points,
+)
+
+__all__ = ["ContourRenderer", "OutlineAdjustment", "OutlineFusion", "OutlineFusionConfig", "OutlineImage"]
+
+#: The robot's occluding contour with the arm at q (n,) rad, seen from T_camera_base (4, 4).
+ContourRenderer = Callable[[FloatArray, FloatArray], ContourPoints]
+
+#: Finite-difference step of the outline residuals' Jacobian, rad and metres.
+_JACOBIAN_STEP = 1e-6
+
+
+@dataclass(frozen=True)
+class OutlineImage:
+    """One image's edges and what the robot did in it.
+
+    Attributes:
+        edges: its sub-pixel edges (``solver.outlines.image_edges``).
+        q: (n,) float64, rad: the arm's configuration in it.
+        group: the motion it belongs to (its images share the links' shading: one cluster).
+    """
+
+    edges: ImageEdges
+    q: FloatArray
+    group: int
+
+    def __post_init__(self) -> None:
+        q = np.asarray(self.q, dtype=np.float64).reshape(-1)
+        if q.size == 0 or not np.all(np.isfinite(q)):
+            raise InvalidInputError("an outline image's joint configuration must be a finite (n,) array")
+        object.__setattr__(self, "q", q)
+
+
+@dataclass(frozen=True)
+class OutlineFusionConfig:
+    """Settings of ``OutlineAdjustment``.
+
+    Attributes:
+        outline: the pairing of contour points with edges (``OutlineConfig``: distance, angle, Cauchy scale,
+            pairings per render, minimum pairs).
+        rerender_px: an image's contour is rendered again when the pose has moved it by more than this, pixels.
+        renders: rounds of (render where needed, pair, solve) per fuse.
+        gauss_newton_steps: iteratively reweighted Gauss-Newton steps per pairing.
+        edge_offset_px: 1-sigma of a common offset of all edges from the true outline, pixels (a consider
+            parameter of the covariance).
+        min_groups: fewest motions with images before the outlines are used (the clustered covariance needs
+            several clusters).
+        max_disagreement_chi2: the fused pose is refused when it lies further than this from the tracks' pose
+            (Mahalanobis, under the sum of the tracks' and the outlines' covariances; chi-square, 6 dof, 0.999).
+    """
+
+    outline: OutlineConfig = OutlineConfig()
+    rerender_px: float = 1.0
+    renders: int = 3
+    gauss_newton_steps: int = 4
+    edge_offset_px: float = 0.3
+    min_groups: int = 6
+    max_disagreement_chi2: float = 22.46
+
+    def __post_init__(self) -> None:
+        if not (self.rerender_px > 0 and self.edge_offset_px >= 0 and self.max_disagreement_chi2 > 0):
+            raise InvalidInputError("need rerender_px > 0, edge_offset_px >= 0 and max_disagreement_chi2 > 0")
+        if min(self.renders, self.gauss_newton_steps, self.min_groups) < 1:
+            raise InvalidInputError("renders, gauss_newton_steps and min_groups must be >= 1")
+
+
+@dataclass(frozen=True)
+class OutlineFusion:
+    """``OutlineAdjustment.fuse``'s result.
+
+    Attributes:
+        T_camera_base: (4, 4) float64: the pose that fits the tracks' prior and the outlines together.
+        covariance: (6, 6) float64: its covariance of (omega rad, tau m) (``perturb``'s parameters).
+        outline_covariance: (6, 6) float64: the outlines' alone (clustered, with the edge offset considered).
+        disagreement_chi2: the fused pose's Mahalanobis distance squared from the tracks' pose.
+        n_pairs: contour points paired with an edge at the end.
+        n_images: images used.
+        n_groups: motions they came from.
+        sigma_px: the residuals' robust scale, pixels.
+        rendered: contours rendered during this fuse.
+    """
+
+    T_camera_base: FloatArray
+    covariance: FloatArray
+    outline_covariance: FloatArray
+    disagreement_chi2: float
+    n_pairs: int
+    n_images: int
+    n_groups: int
+    sigma_px: float
+    rendered: int
+
+
+@dataclass
+class _Cached:
+    image: OutlineImage
+    contour: ContourPoints | None = None
+    T_rendered: FloatArray | None = None
+
+
+@dataclass(frozen=True)
+class _Normal:
+    """The whitened normal equations of the outlines at a pose: information, gradient, per-group scores."""
+
+    information: FloatArray  # (6, 6)
+    gradient: FloatArray  # (6,): J^T W r / sigma^2
+    group_scores: FloatArray  # (G, 6): each group's share of the gradient
+    offset_gradient: FloatArray  # (6,): J^T W 1 / sigma^2 (the residuals' derivative by a common edge offset)
+    sigma_px: float
+    n_pairs: int
+
+
+class OutlineAdjustment:
+    """The outline images of a calibration and their joint adjustment with the tracks' pose.
+
+    Args:
+        renderer: the robot's contour at a configuration, from a pose (``ContourRenderer``).
+        intrinsics: the camera of the images.
+        config: settings; defaults to ``OutlineFusionConfig()``.
+    """
+
+    def __init__(self, renderer: ContourRenderer, intrinsics: CameraIntrinsics,
+                 config: OutlineFusionConfig | None = None):
+        self.renderer = renderer
+        self.intrinsics = intrinsics
+        self.config = config or OutlineFusionConfig()
+        self._images: list[_Cached] = []
+
+    @property
+    def n_images(self) -> int:
+        """Images added so far."""
+        return len(self._images)
+
+    @property
+    def n_groups(self) -> int:
+        """Motions the images come from."""
+        return len({c.image.group for c in self._images})
+
+    def add(self, image: OutlineImage) -> None:
+        """Keep one image for the next ``fuse``."""
+        self._images.append(_Cached(image))
+
+    def fuse(self, T_prior: FloatArray, covariance_prior: FloatArray) -> OutlineFusion:
+        """The pose that fits the tracks' estimate (a Gaussian prior) and every image's outlines.
+
+        Args:
+            T_prior: (4, 4) float64: the tracks' pose (the start: it must put the outlines within
+                ``OutlineConfig.max_match_px`` of the images' edges).
+            covariance_prior: (6, 6) float64: its covariance of (omega rad, tau m).
+
+        Raises:
+            InvalidInputError: a non-rigid pose, or a covariance that is not finite, symmetric positive definite.
+            InsufficientMotionsError: images from fewer than ``min_groups`` motions, too few contour points pair
+                with an edge, or the fused pose disagrees with the tracks' (the message gives the distance).
+        """
+        cfg = self.config
+        T0 = check_transform(np.asarray(T_prior, dtype=np.float64), "T_prior")
+        C0 = np.asarray(covariance_prior, dtype=np.float64)
+        if C0.shape != (6, 6) or not np.all(np.isfinite(C0)) or not np.allclose(C0, C0.T, rtol=1e-9, atol=0.0):
+            raise InvalidInputError("the prior covariance must be a finite symmetric (6, 6) array")
+        try:
+            L_inv = np.linalg.inv(np.linalg.cholesky(C0))
+        except np.linalg.LinAlgError as exc:
+            raise InvalidInputError("the prior covariance is not positive definite") from exc
+        P = L_inv.T @ L_inv  # the tracks' information on the pose
+        if self.n_groups < cfg.min_groups:
+            raise InsufficientMotionsError(f"outline images from {self.n_groups} motion(s); "
+                                           f"at least {cfg.min_groups} are needed")
+        T = T0
+        rendered = 0
+        normal: _Normal | None = None
+        for _ in range(cfg.renders):
+            rendered += self._render_where_moved(T)
+            for _ in range(cfg.outline.associations):
+                pairs, groups = self._pairs(T)
+                for _ in range(cfg.gauss_newton_steps):
+                    normal = self._normal(T, pairs, groups)
+                    d = pose_difference(T0, T)
+                    H = P + normal.information
+                    step = -np.linalg.solve(H, P @ d + normal.gradient)
+                    T = perturb(T, step)
+                    if np.max(np.abs(step)) < 1e-9:
+                        break
+        pairs, groups = self._pairs(T)
+        normal = self._normal(T, pairs, groups)
+        cov_outline, cov = self._covariances(P, normal)
+        d = pose_difference(T0, T)
+        disagreement = float(d @ np.linalg.solve(C0 + cov_outline, d))
+        if disagreement > cfg.max_disagreement_chi2:
+            raise InsufficientMotionsError(
+                f"the outlines disagree with the tracks: the joint fit lies {np.sqrt(disagreement):.1f} sigma from "
+                f"the tracks' pose (at most {np.sqrt(cfg.max_disagreement_chi2):.1f}); the robot model may not match "
+                "the robot, or other edges lie along its outline")
+        return OutlineFusion(T, cov, cov_outline, disagreement, normal.n_pairs, len(self._images), self.n_groups,
+                             normal.sigma_px, rendered)
+
+    def _render_where_moved(self, T: FloatArray) -> int:
+        """Render the contours the pose T has moved by more than ``rerender_px``; returns how many."""
+        count = 0
+        for cached in self._images:
+            if cached.contour is not None and cached.T_rendered is not None and len(cached.contour.points_base):
+                before, _ = project_base_points(cached.T_rendered, cached.contour.points_base, self.intrinsics)
+                after, _ = project_base_points(T, cached.contour.points_base, self.intrinsics)
+                if np.max(np.linalg.norm(after - before, axis=1)) <= self.config.rerender_px:
+                    continue
+            cached.contour = self.renderer(T, cached.image.q)
+            cached.T_rendered = T.copy()
+            count += 1
+        return count
+
+    def _pairs(self, T: FloatArray) -> tuple[EdgePairs, FloatArray]:
+        """Every image's contour points paired with edges at T, and (P,) the group of each pair."""
+        parts, groups = [], []
+        for cached in self._images:
+            assert cached.contour is not None
+            pairs = pair_contour_points(T, [cached.contour], [cached.image.edges], self.intrinsics, self.config.outline)
+            parts.append(pairs)
+            groups.append(np.full(len(pairs.points_base), cached.image.group))
+        pairs = EdgePairs(*(np.concatenate(p) for p in zip(*((q.points_base, q.edge_points, q.normals) for q in parts),
+                                                         strict=True)))
+        if len(pairs.points_base) < self.config.outline.min_pairs:
+            raise InsufficientMotionsError(
+                f"only {len(pairs.points_base)} contour points lie within {self.config.outline.max_match_px} px of an "
+                f"image edge of their direction (at least {self.config.outline.min_pairs} needed): the estimate is "
+                "too far off, or the outlines are not in the images")
+        return pairs, np.concatenate(groups).astype(np.float64)
+
+    def _normal(self, T: FloatArray, pairs: EdgePairs, groups: FloatArray) -> _Normal:
+        """The outlines' whitened normal equations at T (Cauchy weights, scale from the residuals)."""
+        r = outline_residuals(T, pairs.points_base, pairs.edge_points, pairs.normals, self.intrinsics)
+        J = np.empty((len(r), 6))
+        for k in range(6):
+            xi = np.zeros(6)
+            xi[k] = _JACOBIAN_STEP
+            J[:, k] = (outline_residuals(perturb(T, xi), pairs.points_base, pairs.edge_points, pairs.normals,
+                                         self.intrinsics) - r) / _JACOBIAN_STEP
+        sigma = max(1.4826 * float(np.median(np.abs(r - np.median(r)))), 0.05)
+        c = self.config.outline.cauchy_px
+        w = 1.0 / (1.0 + (r / c) ** 2) / sigma**2
+        information = J.T @ (w[:, None] * J)
+        per_pair = J * (w * r)[:, None]
+        labels, index = np.unique(groups, return_inverse=True)
+        scores = np.zeros((len(labels), 6))
+        np.add.at(scores, index, per_pair)
+        return _Normal(0.5 * (information + information.T), per_pair.sum(axis=0), scores, J.T @ w, sigma, len(r))
+
+    def _covariances(self, P: FloatArray, normal: _Normal) -> tuple[FloatArray, FloatArray]:
+        """(the outlines' covariance, the fused one), both (6, 6): clustered by motion, the edge offset considered."""
+        A = normal.information
+        G = len(normal.group_scores)
+        centred = normal.group_scores - normal.group_scores.mean(axis=0)
+        B = centred.T @ centred * G / max(G - 1, 1)
+        # The outlines' meat: the clustered scatter where it exceeds the model's information (A itself, in
+        # whitened units), in A's eigen-directions.
+        lam, V = eigh(B, A)
+        AV = A @ V
+        meat = AV @ np.diag(np.maximum(lam, 1.0)) @ AV.T
+        meat = 0.5 * (meat + meat.T)
+        A_inv = np.linalg.inv(A)
+        offset_outline = A_inv @ normal.offset_gradient
+        cov_outline = A_inv @ meat @ A_inv + self.config.edge_offset_px**2 * np.outer(offset_outline, offset_outline)
+        H_inv = np.linalg.inv(P + A)
+        offset = H_inv @ normal.offset_gradient
+        cov = H_inv @ (P + meat) @ H_inv + self.config.edge_offset_px**2 * np.outer(offset, offset)
+        return 0.5 * (cov_outline + cov_outline.T), 0.5 * (cov + cov.T)

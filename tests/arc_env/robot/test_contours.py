@@ -1,0 +1,98 @@
+"""arc_env.robot.contours: the robot's contours from its own model, against the simulator and OpenCV's projection."""
+
+import threading
+
+import cv2
+import numpy as np
+import pytest
+
+from arc_env.robot.contours import RobotContours
+from arc_env.robot.model import RobotModel, RobotSource
+from arc_env.robot.overlay import RobotProjector
+from arc_env.sim.scene import Scene, SceneConfig
+from solver.frames import transform_from_rt
+from solver.observations import CameraIntrinsics
+
+W, H = 640, 360
+#: Depth agreement with the simulator's renderer (float32 depth buffers of one GL pipeline), metres.
+DEPTH_TOL_M = 1e-4
+#: Masks of a mesh filled by OpenCV and rendered by GL differ along the outline only: this share of the pixels of
+#: either lies within a pixel of the other.
+MIN_NEAR = 0.995
+
+
+def _look_at(eye, target) -> np.ndarray:
+    """T_camera_base of a camera at eye (3,) m looking at target (3,) m, the base's z up in the image."""
+    z = np.asarray(target, float) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, -1.0])
+    x /= np.linalg.norm(x)
+    R_base_camera = np.stack([x, np.cross(z, x), z], axis=1)
+    return transform_from_rt(R_base_camera.T, -R_base_camera.T @ eye)
+
+
+T_VIEW = _look_at(np.array([1.6, 0.5, 0.9]), np.array([0.0, 0.0, 0.45]))
+
+
+@pytest.fixture(scope="module")
+def robot() -> RobotModel:
+    return RobotModel.load(RobotSource())
+
+
+@pytest.fixture(scope="module")
+def q(robot) -> np.ndarray:
+    q = robot.home.copy()
+    q[1] += 0.3
+    return q
+
+
+def test_depth_and_mask_are_the_simulators(robot, q):
+    scene = Scene(SceneConfig(width=W, height=H, appearance="as_shipped", shadows=False))
+    try:
+        scene.robot.set_q(q)
+        depth, mask = scene.depth(T_VIEW).astype(np.float64), scene.robot_mask(T_VIEW)
+        ours, our_mask = RobotContours(robot, scene.intrinsics).depth_and_mask(T_VIEW, q)
+    finally:
+        scene.close()
+    assert mask.sum() > 1000 and np.array_equal(mask, our_mask)
+    assert np.max(np.abs(depth[mask] - ours[mask])) < DEPTH_TOL_M
+    floor = ~mask & np.isfinite(ours)  # the support plane, filled in analytically
+    assert floor.sum() > 0.3 * H * W
+    assert np.median(np.abs(depth[floor] - ours[floor])) < DEPTH_TOL_M
+
+
+def test_an_off_centre_camera_sees_what_opencv_projects(robot, q):
+    camera = CameraIntrinsics(np.array([[520.0, 0, 360.0], [0, 520.0, 160.0], [0, 0, 1]]), np.zeros(5), W, H)
+    _, mask = RobotContours(robot, camera).depth_and_mask(T_VIEW, q)
+    projected = RobotProjector(robot, camera).mask(q, T_VIEW)
+    grown = [cv2.dilate(m.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0 for m in (mask, projected)]
+    assert mask.sum() > 5000
+    assert (mask & grown[1]).sum() / mask.sum() > MIN_NEAR and (projected & grown[0]).sum() / projected.sum() > MIN_NEAR
+    contour = RobotContours(robot, camera, stride=1)(T_VIEW, q)
+    cam = contour.points_base @ T_VIEW[:3, :3].T + T_VIEW[:3, 3]
+    px = cam[:, :2] / cam[:, 2:] * 520.0 + [360.0, 160.0]
+    inside = px - 0.5 * contour.outward  # half a pixel in from the contour: the robot; half out: what it hides
+    outside = px + 0.5 * contour.outward
+    ii, oo = np.rint(inside).astype(int), np.rint(outside).astype(int)
+    assert np.all(mask[ii[:, 1], ii[:, 0]])
+    assert np.mean(~mask[oo[:, 1], oo[:, 0]]) > 0.5  # the rest lies on a farther link
+
+
+def test_the_floor_under_the_base_makes_no_outline(robot, q):
+    camera = CameraIntrinsics(np.array([[520.0, 0, 319.5], [0, 520.0, 179.5], [0, 0, 1]]), np.zeros(5), W, H)
+    low = _look_at(np.array([1.2, 0.2, 0.4]), np.array([0.0, 0.0, 0.2]))  # the base's foot in view
+    on_floor = RobotContours(robot, camera, stride=1)(low, q)
+    in_air = RobotContours(robot, camera, stride=1, ground=False)(low, q)
+    near_floor = [int(np.sum(c.points_base[:, 2] < 0.01)) for c in (on_floor, in_air)]
+    assert near_floor[1] > 20 and near_floor[0] < 0.25 * near_floor[1]
+
+
+def test_another_thread_renders_the_same(robot, q):
+    camera = CameraIntrinsics(np.array([[520.0, 0, 319.5], [0, 520.0, 179.5], [0, 0, 1]]), np.zeros(5), W, H)
+    contours = RobotContours(robot, camera)
+    here = contours(T_VIEW, q)
+    there = []
+    worker = threading.Thread(target=lambda: there.append(contours(T_VIEW, q)))
+    worker.start()
+    worker.join()
+    assert np.array_equal(here.points_base, there[0].points_base)

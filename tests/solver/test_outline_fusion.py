@@ -1,0 +1,100 @@
+"""solver.outline_fusion: the tracks' pose and the outlines adjusted together, on spheres seen by a known camera."""
+
+import numpy as np
+import pytest
+
+from solver.errors import InsufficientMotionsError, InvalidInputError
+from solver.frames import perturb, pose_difference
+from solver.outline_fusion import OutlineAdjustment, OutlineFusionConfig, OutlineImage
+from solver.outlines import ImageEdges, image_edges
+from tests.solver.spheres import CAMERA, T_TRUE, render_spheres, sphere_contour
+
+#: Six motions' images (one each) of three spheres: centre (3,) m in the base frame, radius m.
+_RNG = np.random.default_rng(7)
+SCENES = [[(tuple(_RNG.uniform(-0.15, 0.15, 3)), float(_RNG.uniform(0.035, 0.05))) for _ in range(3)]
+          for _ in range(6)]
+#: The joint-free start of the tracks: 8 mm and a few mrad off, with a vague covariance.
+START = np.array([2e-3, -1e-3, 1.5e-3, 3e-3, -2e-3, 8e-3])
+VAGUE = np.diag([1e-2, 1e-2, 1e-2, 2e-2, 2e-2, 2e-2]) ** 2
+#: The pose from noise-free outlines of six images: rad, metres.
+ROT_TOL, TRANS_TOL = 5e-4, 3e-4
+#: chi-square, 6 dof, 0.999: an honest covariance holds the error within it.
+CHI2_999 = 22.46
+
+
+def _renderer(T: np.ndarray, q: np.ndarray):
+    return sphere_contour(T, SCENES[int(q[0])])
+
+
+@pytest.fixture(scope="module")
+def edges() -> list[ImageEdges]:
+    return [image_edges(render_spheres(T_TRUE, spheres)) for spheres in SCENES]
+
+
+def _adjustment(edges, config=None, shift_px: float = 0.0, groups=None) -> OutlineAdjustment:
+    """The images as motions 0-5; ``shift_px`` moves every edge that far inwards (towards the bright spheres)."""
+    adjustment = OutlineAdjustment(_renderer, CAMERA, config)
+    for k, image in enumerate(edges):
+        moved = ImageEdges(image.points + shift_px * image.normals, image.normals)
+        adjustment.add(OutlineImage(moved, np.array([float(k)]), k if groups is None else groups[k]))
+    return adjustment
+
+
+def _chi2(T, covariance) -> float:
+    err = pose_difference(T, T_TRUE)
+    return float(err @ np.linalg.solve(covariance, err))
+
+
+def test_a_vague_prior_gives_the_outlines_pose(edges):
+    fusion = _adjustment(edges).fuse(perturb(T_TRUE, START), VAGUE)
+    err = pose_difference(fusion.T_camera_base, T_TRUE)
+    assert np.linalg.norm(err[:3]) < ROT_TOL
+    assert np.linalg.norm(err[3:]) < TRANS_TOL
+    assert (fusion.n_images, fusion.n_groups, fusion.rendered) == (6, 6, 12)  # rendered at the start and once moved
+    assert np.all(np.diag(fusion.covariance) < 0.1 * np.diag(VAGUE))
+    assert _chi2(fusion.T_camera_base, fusion.covariance) < CHI2_999
+
+
+def test_a_tight_prior_holds_the_pose(edges):
+    prior = perturb(T_TRUE, 0.1 * START)  # 0.9 mm off, 1-sigma 10 nm: the outlines (1-sigma ~5 um) barely move it
+    fusion = _adjustment(edges, OutlineFusionConfig(max_disagreement_chi2=1e9)).fuse(prior, np.eye(6) * 1e-16)
+    assert np.linalg.norm(pose_difference(fusion.T_camera_base, prior)) < 1e-6
+
+
+def test_the_edge_offset_is_in_the_covariance(edges):
+    """Edges 0.3 px inside the outline move the pose; the covariance that considers such an offset holds the error."""
+    start = perturb(T_TRUE, START)
+    honest = _adjustment(edges, OutlineFusionConfig(edge_offset_px=0.3), shift_px=0.3).fuse(start, VAGUE)
+    blind = _adjustment(edges, OutlineFusionConfig(edge_offset_px=0.0), shift_px=0.3).fuse(start, VAGUE)
+    assert np.linalg.norm(pose_difference(honest.T_camera_base, T_TRUE)[3:]) > 2 * TRANS_TOL  # the offset shows
+    assert _chi2(honest.T_camera_base, honest.covariance) < CHI2_999
+    assert _chi2(blind.T_camera_base, blind.covariance) > CHI2_999  # the textbook covariance does not
+
+
+def test_settled_images_are_not_rendered_again(edges):
+    adjustment = _adjustment(edges)
+    first = adjustment.fuse(perturb(T_TRUE, START), VAGUE)
+    again = adjustment.fuse(first.T_camera_base, VAGUE)
+    assert again.rendered == 0
+    assert np.linalg.norm(pose_difference(again.T_camera_base, first.T_camera_base)) < 1e-5
+
+
+def test_outlines_that_disagree_with_the_tracks_are_refused(edges):
+    prior = perturb(T_TRUE, np.array([0, 0, 0, 0, 0, 5e-3]))  # 5 mm off with a 1-sigma of 0.1 mm
+    with pytest.raises(InsufficientMotionsError, match="disagree"):
+        _adjustment(edges).fuse(prior, np.eye(6) * 1e-8)
+
+
+def test_too_few_motions_or_bad_priors_are_refused(edges):
+    with pytest.raises(InsufficientMotionsError, match="from 2 motion"):
+        _adjustment(edges, groups=[0, 0, 0, 1, 1, 1]).fuse(T_TRUE, VAGUE)
+    with pytest.raises(InvalidInputError, match="positive definite"):
+        _adjustment(edges).fuse(T_TRUE, -VAGUE)
+    with pytest.raises(InvalidInputError, match="symmetric"):
+        _adjustment(edges).fuse(T_TRUE, np.full((6, 6), np.nan))
+    with pytest.raises(InvalidInputError, match="T_prior"):
+        _adjustment(edges).fuse(np.eye(3), VAGUE)
+    with pytest.raises(InsufficientMotionsError, match="contour points lie within"):
+        _adjustment(edges).fuse(perturb(T_TRUE, np.array([0, 0, 0, 2.0, 0, 0])), VAGUE)
+    with pytest.raises(InvalidInputError, match="finite"):
+        OutlineImage(edges[0], np.array([np.nan]), 0)
