@@ -233,6 +233,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--beside-clean", action="store_true",
                         help="also run the same poses and seeds clean with the painted robot (tracked only) and "
                         "print both side by side")
+    parser.add_argument("--outline-frames", type=int, default=0,
+                        help="images per motion for the outline stage (the robot's outlines adjusted with the "
+                             "tracks; tracked runs only); default 0: off")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
@@ -251,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     modes = {look: ["tracked"] + ([] if args.no_oracle or i > 0 else ["oracle"]) for i, look in enumerate(looks)}
     specs = {(robot, size, look, mode, pose, seed): EpisodeSpec(
                  "random", pose, seed, args.motions, size[0], size[1], realism=look[0], appearance=look[1],
-                 oracle=mode == "oracle", robot=robot)
+                 oracle=mode == "oracle", robot=robot, outline_frames=args.outline_frames if mode == "tracked" else 0)
              for robot in robots for size in sizes for look in looks
              for pose in range(args.poses) for seed in range(args.seeds) for mode in modes[look]}
     print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, "

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -46,6 +46,7 @@ from solver.frames import pose_difference, transform_from_rt
 from solver.kinematics import AxisFunction
 from solver.motion import MotionConfig, MotionGeometry, estimate_motion_geometry, track_moved
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
+from solver.outline_fusion import ContourRenderer, OutlineAdjustment, OutlineFusion, OutlineFusionConfig, OutlineImage
 from solver.refinement import (
     RefinementConfig,
     RefinementResult,
@@ -139,6 +140,9 @@ class CalibratorConfig:
             arrives is no reason to relinearize.
         relinearize_sigma: see ``incremental``.
         relinearize_every: see ``incremental``.
+        outlines: the outline stage (``solver.outline_fusion``), when the calibrator is given a contour renderer
+            and motions bring outline images: every update adjusts the refined pose of the tracks together with
+            the robot's outlines in those images, and the state reports the joint pose and covariance.
     """
 
     motion: MotionConfig = field(default_factory=MotionConfig)
@@ -164,6 +168,7 @@ class CalibratorConfig:
     incremental: bool = True
     relinearize_sigma: float = 2.0
     relinearize_every: int = 20
+    outlines: OutlineFusionConfig = field(default_factory=OutlineFusionConfig)
 
     def __post_init__(self) -> None:
         lo, hi = self.family_distances
@@ -244,6 +249,9 @@ class CalibrationState:
             clocks, on top of the one the joint values were read with (``solver.refinement``); None when
             not estimated (``RefinementConfig.estimate_time_offset``) or no refined pose.
         time_offset_std_s: s, its 1-sigma (the covariance's, like ``std``); None likewise.
+        outline: the joint adjustment with the robot's outlines that gave ``T_camera_base`` and ``covariance``
+            (``solver.outline_fusion``); None when the estimate is the tracks' alone (``outline_note`` says why).
+        outline_note: why the outlines were not used, or "" (also "" when there are none: no renderer or images).
     """
 
     T_camera_base: FloatArray | None
@@ -261,6 +269,8 @@ class CalibrationState:
     start: Start = ""
     time_offset_s: float | None = None
     time_offset_std_s: float | None = None
+    outline: OutlineFusion | None = None
+    outline_note: str = ""
 
 
 @dataclass
@@ -401,13 +411,18 @@ class Calibrator:
         intrinsics: the camera.
         kinematics: Gamma(q, joint) -> (axis_base, point_base), e.g. ``DHChain.axis_and_point``.
         config: settings; defaults to ``CalibratorConfig()``.
+        contours: the robot's occluding contour at a configuration from a camera pose (``ContourRenderer``, e.g.
+            ``arc_env.robot.contours.RobotContours``), for the outline stage (``CalibratorConfig.outlines``);
+            None: the tracks alone.
     """
 
     def __init__(self, intrinsics: CameraIntrinsics, kinematics: AxisFunction,
-                 config: CalibratorConfig | None = None):
+                 config: CalibratorConfig | None = None, contours: ContourRenderer | None = None):
         self.intrinsics = intrinsics
         self.kinematics = kinematics
         self.config = config or CalibratorConfig()
+        self.outlines = (OutlineAdjustment(contours, intrinsics, self.config.outlines)
+                         if contours is not None else None)
         self.reports: list[MotionReport] = []
         self._motions: list[_Motion | None] = []
         self._rng = np.random.default_rng(self.config.seed)
@@ -424,8 +439,12 @@ class Calibrator:
         self.state = CalibrationState(None, "none", None, None, None, None, False, 0, 0, None,
                                       "no motion yet")
 
-    def add_motion(self, obs: MotionObservation, update: bool = True) -> MotionReport:
+    def add_motion(self, obs: MotionObservation, update: bool = True,
+                   outlines: Sequence[OutlineImage] = ()) -> MotionReport:
         """Take one motion's observation, prune or keep it, and (by default) update the estimate.
+
+        ``outlines``: images of the motion for the outline stage (their ``group`` becomes the motion's index);
+        kept only when the calibrator has a contour renderer.
 
         Raises:
             InvalidInputError: the kinematics function rejects the motion's configuration or
@@ -440,6 +459,9 @@ class Calibrator:
             )
         report = MotionReport(index=len(self.reports), joint=obs.joint, n_tracks=len(obs.tracks))
         self.reports.append(report)
+        if self.outlines is not None:
+            for image in outlines:
+                self.outlines.add(replace(image, group=report.index))
         mcfg = self.config.motion
         moving = [t for t in obs.tracks
                   if len(t) >= self.config.refinement.min_track_frames and track_moved(t, mcfg)]
@@ -563,10 +585,20 @@ class Calibrator:
             T, stage = None, "none"
             if linear is not None:
                 message = f"the linear estimate is not confirmed by the bundle adjustment: {message}"
+        outline, outline_note = None, ""
+        if refined is not None and self.outlines is not None and self.outlines.n_images:
+            try:
+                last = self.state.outline  # the adjustment goes on from where the last one ended
+                outline = self.outlines.fuse(refined.T_camera_base, refined.covariance,
+                                             last.T_camera_base if last is not None else None)
+                T = outline.T_camera_base
+            except (ArcCalibError, np.linalg.LinAlgError) as exc:
+                outline_note = f"{type(exc).__name__}: {exc}"
+        t_outline = time.perf_counter()
         if T is not None and self._enters_window(refined, live):
             self._monitor.push(T)
             self._window_motions = len(self._motions)
-        cov = refined.covariance if refined is not None else None
+        cov = (outline.covariance if outline is not None else refined.covariance) if refined is not None else None
         std = np.sqrt(np.diag(cov)) if cov is not None else None
         converged = self._monitor.converged and (
             stage == "linear" and not cfg.refine
@@ -581,10 +613,11 @@ class Calibrator:
             n_accepted=n_acc, n_rejected=len(self.reports) - n_acc,
             rms_px=refined.rms_px if refined is not None else None,
             message="" if T is not None else message,
-            seconds={"linear": t_linear - t_start, "refined": t_refined - t_linear},
+            seconds={"linear": t_linear - t_start, "refined": t_refined - t_linear, "outlines": t_outline - t_refined},
             start=start_kind if refined is not None else "",
             time_offset_s=refined.time_offset_s if refined is not None else None,
             time_offset_std_s=refined.time_offset_std_s if refined is not None else None,
+            outline=outline, outline_note=outline_note,
         )
         return self.state
 

@@ -94,6 +94,8 @@ class EpisodeSpec:
         robot: the robot, a name of ``arc_env.robot.library.ROBOT_NAMES``; the cameras are the benchmark
             poses scaled to it (``arc_env.bench.poses.benchmark_view``). Part of ``key`` only when not
             the default Panda, so stores written before this field existed stay valid.
+        outline_frames: images per motion for the outline stage (``EnvConfig.outline_frames``); 0 (off) keeps
+            ``key`` as it was.
     """
 
     method: str
@@ -106,6 +108,7 @@ class EpisodeSpec:
     realism: str = "clean"
     appearance: str | None = None
     robot: str = DEFAULT_ROBOT
+    outline_frames: int = 0
 
     def __post_init__(self) -> None:
         """Check the fields."""
@@ -118,7 +121,8 @@ class EpisodeSpec:
             raise InvalidInputError(f"unknown robot {self.robot!r}; valid: {', '.join(ROBOT_NAMES)}")
         if self.method == "marker" and self.robot != DEFAULT_ROBOT:
             raise InvalidInputError(f"the marker baseline's board mounts on the Panda's flange, not on {self.robot!r}")
-        if self.pose < 0 or self.seed < 0 or self.motions < 1 or self.width < 1 or self.height < 1:
+        if (self.pose < 0 or self.seed < 0 or self.motions < 1 or self.width < 1 or self.height < 1
+                or self.outline_frames < 0 or (self.outline_frames and (self.oracle or self.method == "marker"))):
             raise InvalidInputError(f"invalid episode {self}")
 
     @property
@@ -128,7 +132,8 @@ class EpisodeSpec:
         robot = "" if self.robot == DEFAULT_ROBOT else f"_{self.robot}"
         default_look = (self.realism, self.appearance) == ("clean", None)
         look = "" if default_look else f"_{self.realism}-{self.appearance or 'default'}"
-        return (f"{self.method}{mode}{robot}{look}_{self.width}x{self.height}_m{self.motions}_p{self.pose}"
+        outlines = f"_o{self.outline_frames}" if self.outline_frames else ""
+        return (f"{self.method}{mode}{robot}{look}_{self.width}x{self.height}_m{self.motions}{outlines}_p{self.pose}"
                 f"_s{self.seed}")
 
     @property
@@ -231,6 +236,7 @@ def make_env(spec: EpisodeSpec, board: bool = False):  # noqa: ANN202  (ArcCalib
                                          appearance_seed=spec.rng_seed,
                                          **realism_settings(spec.realism, spec.appearance)),
                        max_motions=spec.motions, oracle_keypoints=spec.oracle, terminate_on_convergence=False,
+                       outline_frames=spec.outline_frames,
                        # the paper's conics on every motion, so ``axes_conics`` counts them all (same estimate;
                        # the solver's time includes them)
                        calibrator=CalibratorConfig(conics_always=True))
@@ -252,7 +258,8 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
     record: dict[str, Any] = {"spec": asdict(spec), "commit": code_version(), "curve": [], "planning": [],
                               "frames": 0, "converged_at": None, "refused": 0, "in_collision": 0,
                               "T_camera_base": None, "note": "", "tracks": [], "full_tracks": [],
-                              "std_curve": [], "chi2_curve": [], "false_convergence": 0}
+                              "std_curve": [], "chi2_curve": [], "false_convergence": 0, "outline_curve": [],
+                              "outline_note": ""}
     env, obs = make_env(spec)
     try:
         planner_cls = RandomPlanner if spec.method == "random" else InformedPlanner
@@ -294,6 +301,8 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
             record["std_curve"].append(std_maxima(state.std))
             record["chi2_curve"].append(truth_chi2(state, env.T_camera_base_true))
             record["false_convergence"] += falsely_converged(state, info["rot_error_rad"], info["trans_error_m"])
+            record["outline_curve"].append(state.outline is not None)
+            record["outline_note"] = state.outline_note
             if obs["converged"] and record["converged_at"] is None:
                 record["converged_at"] = len(record["curve"])
             if info["T_camera_base"] is not None:

@@ -166,7 +166,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     try:
         with Progress(max(len(recording.motions), 1), "motions", enabled=not args.quiet) as bar:
             run = calibrate_reading_offset(read, args.time_offset, on_motion=bar.step,
-                                           observer=fan_out(collected, log))
+                                           observer=fan_out(collected, log), outline_frames=args.outline_frames)
     except BaseException:
         if log is not None:
             log.abort()
@@ -192,6 +192,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_input_arguments(parser)
     parser.add_argument("--ground-truth", metavar="FILE",
                         help="a <recording>.ground_truth.json (simulated recordings): also print the true error")
+    parser.add_argument("--outline-frames", type=int, default=0, metavar="N",
+                        help="adjust the pose with the robot's outlines in N images per motion as well (its model "
+                             "rendered offscreen: needs EGL or OSMesa); default 0: the tracks alone")
     add_rerun_arguments(parser)
 
 

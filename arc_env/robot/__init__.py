@@ -1,5 +1,6 @@
-"""What a real robot needs, and nothing of the simulator: never gymnasium; a GL context only for
-the outline stage's contours (``contours``), created at its first use.
+"""What a real robot needs, and nothing of the simulator: never gymnasium, and GL only when asked.
+
+An offscreen GL context is created only for the outline stage's contours (``contours``), at their first use.
 
 ``model`` (the robot from its MJCF or URDF: kinematics and geometry), ``tracking`` (keypoint tracks),
 ``recording`` (the recording format), ``session`` (the one calibration loop), ``driver`` (the

@@ -33,8 +33,10 @@ from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from typing import Protocol
 
+import cv2
 import numpy as np
 
+from arc_env.robot.contours import RobotContours
 from arc_env.robot.driver import RobotDriver, Sweep
 from arc_env.robot.model import RobotModel, RobotSource
 from arc_env.robot.recording import RecordedMotion, Recording
@@ -42,9 +44,11 @@ from arc_env.robot.tracking import TrackerConfig, track_keypoints
 from planners.collision import CollisionChecker
 from planners.errors import TransitError
 from planners.transit import TransitConfig, TransitPath, plan_transit
-from solver.arrays import FloatArray, ImageArray
+from solver.arrays import FloatArray, ImageArray, evenly_spaced
 from solver.errors import ArcCalibError, InvalidInputError
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
+from solver.outline_fusion import OutlineImage
+from solver.outlines import image_edges
 from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig, FocalCheck, MotionReport
 
 
@@ -91,6 +95,9 @@ class SessionConfig:
         overlap: execute each motion while a worker thread tracks and calibrates the previous one;
             ``step`` then returns the previous motion's result (see ``CalibrationSession.step``). Off
             (default): each motion is executed, tracked and calibrated before ``step`` returns.
+        outline_frames: images per motion (evenly spaced over its sweep) whose edges go to the outline stage
+            (``CalibratorConfig.outlines``; the robot's contours rendered from its model by
+            ``arc_env.robot.contours.RobotContours``, which needs an offscreen GL context); 0: off.
     """
 
     min_delta: float = 0.2
@@ -100,8 +107,11 @@ class SessionConfig:
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     transit: TransitConfig = field(default_factory=TransitConfig)
     overlap: bool = False
+    outline_frames: int = 0
 
     def __post_init__(self) -> None:
+        if self.outline_frames < 0:
+            raise InvalidInputError(f"outline_frames must be >= 0, got {self.outline_frames}")
         if not 0 < self.min_delta < self.max_delta:
             raise InvalidInputError(f"need 0 < min_delta < max_delta, got {self.min_delta}, {self.max_delta}")
         if not self.collision_step_m > 0:
@@ -286,6 +296,7 @@ class CalibrationSession:
         self._checker: CollisionChecker | None = None
         self._transit_seed = 0
         self._pending: _Executed | None = None
+        self._contours: RobotContours | None = None
 
     # -- the planning context ------------------------------------------------------------------
     @property
@@ -325,7 +336,10 @@ class CalibrationSession:
         if rng is not None:
             config = replace(config, seed=int(rng.integers(2**31 - 1)))
             self.np_random = rng
-        self.calibrator = Calibrator(self.intrinsics, self.robot.axis_and_point, config)
+        if self.config.outline_frames and self._contours is None:
+            self._contours = RobotContours(self.robot, self.intrinsics)
+        self.calibrator = Calibrator(self.intrinsics, self.robot.axis_and_point, config,
+                                     contours=self._contours if self.config.outline_frames else None)
         self.n_motions = 0
         self.n_refused = 0
         self.executed = []
@@ -387,7 +401,7 @@ class CalibrationSession:
         self.robot.set_q(acquired.q_end)
         seconds["transit"] = transit.seconds
         t0 = time.perf_counter()
-        outcome = self._observe_executed(acquired.q_start, joint, acquired.deltas, tracks)
+        outcome = self._observe_executed(acquired.q_start, joint, acquired.deltas, tracks, acquired.frames)
         seconds["solver"] = time.perf_counter() - t0
         self.notify(self.n_motions - 1, acquired.q_start, joint, acquired.deltas, acquired.frames, tracks, outcome)
         return StepResult("", transit, outcome, len(acquired.deltas), seconds, index=self.n_motions - 1)
@@ -452,7 +466,8 @@ class CalibrationSession:
             tracks = self.track(acquired.frames or [], acquired.deltas, acquired.velocities)
             seconds["tracking"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        outcome = replace(self.observe(acquired.q_start, executed.joint, tracks),
+        outlines = self.outline_images(acquired.q_start, executed.joint, acquired.deltas, acquired.frames or [])
+        outcome = replace(self.observe(acquired.q_start, executed.joint, tracks, outlines=outlines),
                           n_full_tracks=full_tracks(tracks, acquired.deltas))
         seconds["solver"] = time.perf_counter() - t0
         return list(tracks), outcome, seconds
@@ -474,10 +489,15 @@ class CalibrationSession:
             self.observer(SeenMotion(index, q_start, joint, np.asarray(deltas, dtype=np.float64), frames, tracks,
                                      outcome, self.calibrator, name))
 
-    def _observe_executed(self, q_start: FloatArray, joint: int, deltas: FloatArray,
-                          tracks: Sequence[KeypointTrack]) -> MotionOutcome:
-        """``observe`` an executed motion (deltas (F,) rad) and count it; the outcome counts its full tracks."""
-        outcome = replace(self.observe(q_start, joint, tracks), n_full_tracks=full_tracks(tracks, deltas))
+    def _observe_executed(self, q_start: FloatArray, joint: int, deltas: FloatArray, tracks: Sequence[KeypointTrack],
+                          frames: Sequence[ImageArray] | None = None) -> MotionOutcome:
+        """``observe`` an executed motion (deltas (F,) rad) and count it; the outcome counts its full tracks.
+
+        Its ``frames``, when given, give the outline stage its images (``outline_images``).
+        """
+        outlines = self.outline_images(q_start, joint, deltas, frames or [])
+        outcome = replace(self.observe(q_start, joint, tracks, outlines=outlines),
+                          n_full_tracks=full_tracks(tracks, deltas))
         self.n_motions += 1
         return outcome
 
@@ -516,12 +536,27 @@ class CalibrationSession:
         q_start = self.robot.check_q(q_start)
         self.executed.append((q_start.copy(), joint, float(deltas[-1])))
         self.robot.set_swept(q_start, joint, float(deltas[-1]))
-        outcome = self._observe_executed(q_start, joint, deltas, tracks)
+        outcome = self._observe_executed(q_start, joint, deltas, tracks, frames)
         self.notify(self.n_motions - 1, q_start, joint, deltas, frames, tracks, outcome)
         return outcome
 
+    def outline_images(self, q_start: FloatArray, joint: int, deltas: FloatArray,
+                       frames: Sequence[ImageArray]) -> list[OutlineImage]:
+        """The edges of ``SessionConfig.outline_frames`` of a motion's F frames (deltas (F,) rad), evenly spaced.
+
+        Empty when the outline stage is off or there are no frames.
+        """
+        if not self.config.outline_frames or not len(frames):
+            return []
+        images = []
+        for k in evenly_spaced(len(frames), self.config.outline_frames):
+            q = np.array(q_start, dtype=np.float64)
+            q[joint] += float(deltas[k])
+            images.append(OutlineImage(image_edges(cv2.cvtColor(np.asarray(frames[k]), cv2.COLOR_RGB2GRAY)), q, 0))
+        return images
+
     def observe(self, q_start: FloatArray, joint: int, tracks: Sequence[KeypointTrack],
-                update: bool = True) -> MotionOutcome:
+                update: bool = True, outlines: Sequence[OutlineImage] = ()) -> MotionOutcome:
         """Hand one motion's tracks to the calibrator (after checking the robot model accepts the motion).
 
         Args:
@@ -529,6 +564,7 @@ class CalibrationSession:
             joint: the joint that turned.
             tracks: its keypoint tracks.
             update: recompute the estimate now (Algorithm 1 updates once three motions are in).
+            outlines: its images for the outline stage (``outline_images``).
         """
         if self.calibrator is None:
             raise InvalidInputError("call reset() before observe()")
@@ -538,7 +574,7 @@ class CalibrationSession:
             return MotionOutcome(joint, len(tracks), False, f"the robot model rejects this motion: {exc}")
         try:
             report = self.calibrator.add_motion(MotionObservation(q_start=q_start, joint=joint, tracks=tuple(tracks)),
-                                                update=update)
+                                                update=update, outlines=outlines)
         except ArcCalibError as exc:
             return MotionOutcome(joint, len(tracks), False, f"solver error: {exc}")
         return MotionOutcome(joint, len(tracks), report.accepted, report.reason, report.stage_one, report)
@@ -683,7 +719,7 @@ def driver_session(driver: RobotDriver, config: SessionConfig | None = None,
 def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = None,
                         config: CalibratorConfig | None = None,
                         on_motion: Callable[[str], None] | None = None,
-                        observer: MotionObserver | None = None) -> CalibrationRun:
+                        observer: MotionObserver | None = None, outline_frames: int = 0) -> CalibrationRun:
     """Track every usable motion and calibrate; motions pruned on the way keep their reasons.
 
     Args:
@@ -692,13 +728,15 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
         config: solver settings (default ``CalibratorConfig()``: more tracks per motion than online).
         on_motion: called with a one-line status after each motion (a progress display).
         observer: called with each motion the calibrator took, frames included (``SeenMotion``).
+        outline_frames: images per motion for the outline stage (``SessionConfig.outline_frames``); 0: off.
 
     Raises:
         InvalidInputError: a frame or video does not decode (the message names it).
     """
     session = CalibrationSession(recording.robot, recording.intrinsics,
                                  config=SessionConfig(calibrator=config or CalibratorConfig(),
-                                                      tracker=tracker or TrackerConfig()))
+                                                      tracker=tracker or TrackerConfig(),
+                                                      outline_frames=outline_frames))
     session.reset()
     session.observer = observer
     calibrator = session.calibrator
@@ -726,7 +764,8 @@ def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = No
             else:
                 assert m.joint is not None
                 update = len(calibrator.reports) >= 2  # Algorithm 1: update once 3 motions are in
-                outcome = session.observe(m.q_start, m.joint, tracks, update=update)
+                outlines = session.outline_images(m.q_start, m.joint, m.delta, frames)
+                outcome = session.observe(m.q_start, m.joint, tracks, update=update, outlines=outlines)
                 if outcome.report is None:
                     diag.reason = outcome.reason
                 else:
@@ -764,7 +803,7 @@ OFFSET_PASS_SIGMAS = 2.0
 def calibrate_reading_offset(read: Callable[[float], Recording], given_s: float = 0.0,
                              tracker: TrackerConfig | None = None, config: CalibratorConfig | None = None,
                              on_motion: Callable[[str], None] | None = None, max_passes: int = 3,
-                             observer: MotionObserver | None = None) -> CalibrationRun:
+                             observer: MotionObserver | None = None, outline_frames: int = 0) -> CalibrationRun:
     """``calibrate_recording``, read again at the corrected time offset while the correction is large.
 
     The bundle adjustment's time-offset estimate is first order in the correction (each frame's turn
@@ -784,12 +823,13 @@ def calibrate_reading_offset(read: Callable[[float], Recording], given_s: float 
         on_motion: progress callback, as ``calibrate_recording``'s (called again on every pass).
         max_passes: most calibrations; >= 1.
         observer: as ``calibrate_recording``'s (called again on every pass).
+        outline_frames: as ``calibrate_recording``'s.
     """
     if max_passes < 1:
         raise InvalidInputError(f"max_passes must be >= 1, got {max_passes}")
     offset = given_s
     for _ in range(max_passes):
-        run = calibrate_recording(read(offset), tracker, config, on_motion, observer)
+        run = calibrate_recording(read(offset), tracker, config, on_motion, observer, outline_frames)
         s = run.calibrator.state
         if (s.time_offset_s is None or s.time_offset_std_s is None
                 or abs(s.time_offset_s) <= max(OFFSET_PASS_TOL_S, OFFSET_PASS_SIGMAS * s.time_offset_std_s)):

@@ -64,6 +64,7 @@ class EnvConfig:
         overlap: render each motion while a worker thread tracks and calibrates the previous one
             (``SessionConfig.overlap``); ``step`` then reports the previous motion (see "Overlap" in
             ``ArcCalibEnv``'s docstring). Off (default): each step reports its own motion.
+        outline_frames: images per motion for the outline stage (``SessionConfig.outline_frames``); 0: off.
     """
 
     scene: SceneConfig = field(default_factory=SceneConfig)
@@ -89,6 +90,7 @@ class EnvConfig:
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     transit: TransitConfig = field(default_factory=TransitConfig)
     overlap: bool = False
+    outline_frames: int = 0
 
     def __post_init__(self) -> None:
         if self.max_motions < 1 or self.max_refusals < 1:
@@ -108,7 +110,8 @@ class EnvConfig:
         """The calibration session's part of these settings."""
         return SessionConfig(min_delta=self.min_delta, max_delta=self.max_delta,
                              collision_step_m=self.collision_step_m, calibrator=self.calibrator,
-                             tracker=self.tracker, transit=self.transit, overlap=self.overlap)
+                             tracker=self.tracker, transit=self.transit, overlap=self.overlap,
+                             outline_frames=self.outline_frames)
 
 
 class ArcCalibEnv(gym.Env):

@@ -31,12 +31,11 @@ def edges() -> list[ImageEdges]:
     return [image_edges(render_spheres(T_TRUE, spheres)) for spheres in SCENES]
 
 
-def _adjustment(edges, config=None, shift_px: float = 0.0, groups=None) -> OutlineAdjustment:
-    """The images as motions 0-5; ``shift_px`` moves every edge that far inwards (towards the bright spheres)."""
+def _adjustment(edges, config=None, groups=None) -> OutlineAdjustment:
+    """The images as motions 0-5 (or ``groups``)."""
     adjustment = OutlineAdjustment(_renderer, CAMERA, config)
     for k, image in enumerate(edges):
-        moved = ImageEdges(image.points + shift_px * image.normals, image.normals)
-        adjustment.add(OutlineImage(moved, np.array([float(k)]), k if groups is None else groups[k]))
+        adjustment.add(OutlineImage(image, np.array([float(k)]), k if groups is None else groups[k]))
     return adjustment
 
 
@@ -61,12 +60,20 @@ def test_a_tight_prior_holds_the_pose(edges):
     assert np.linalg.norm(pose_difference(fusion.T_camera_base, prior)) < 1e-6
 
 
-def test_the_edge_offset_is_in_the_covariance(edges):
-    """Edges 0.3 px inside the outline move the pose; the covariance that considers such an offset holds the error."""
+@pytest.mark.parametrize("shift", ["inward", "sideways"])
+def test_the_edge_offsets_are_in_the_covariance(edges, shift):
+    """Edges 0.3 px inside the outline, or all 0.3 px to one side, move the pose; the covariance holds the error."""
     start = perturb(T_TRUE, START)
-    honest = _adjustment(edges, OutlineFusionConfig(edge_offset_px=0.3), shift_px=0.3).fuse(start, VAGUE)
-    blind = _adjustment(edges, OutlineFusionConfig(edge_offset_px=0.0), shift_px=0.3).fuse(start, VAGUE)
-    assert np.linalg.norm(pose_difference(honest.T_camera_base, T_TRUE)[3:]) > 2 * TRANS_TOL  # the offset shows
+
+    def fused(config):
+        adjustment = OutlineAdjustment(_renderer, CAMERA, config)
+        for k, image in enumerate(edges):
+            move = 0.3 * image.normals if shift == "inward" else np.array([0.3, 0.0])
+            adjustment.add(OutlineImage(ImageEdges(image.points + move, image.normals), np.array([float(k)]), k))
+        return adjustment.fuse(start, VAGUE)
+
+    honest, blind = fused(OutlineFusionConfig(edge_offset_px=0.3)), fused(OutlineFusionConfig(edge_offset_px=0.0))
+    assert np.linalg.norm(pose_difference(honest.T_camera_base, T_TRUE)[3:]) > TRANS_TOL  # the offset shows
     assert _chi2(honest.T_camera_base, honest.covariance) < CHI2_999
     assert _chi2(blind.T_camera_base, blind.covariance) > CHI2_999  # the textbook covariance does not
 
@@ -74,7 +81,7 @@ def test_the_edge_offset_is_in_the_covariance(edges):
 def test_settled_images_are_not_rendered_again(edges):
     adjustment = _adjustment(edges)
     first = adjustment.fuse(perturb(T_TRUE, START), VAGUE)
-    again = adjustment.fuse(first.T_camera_base, VAGUE)
+    again = adjustment.fuse(perturb(T_TRUE, START), VAGUE, first.T_camera_base)
     assert again.rendered == 0
     assert np.linalg.norm(pose_difference(again.T_camera_base, first.T_camera_base)) < 1e-5
 

@@ -30,8 +30,12 @@ from solver import (
     sample_camera_pose,
 )
 from solver.calibration import AxisCorrespondence, family_offsets, pose_family
+from solver.camera import pixels_from_camera_points
+from solver.outline_fusion import OutlineFusionConfig, OutlineImage
+from solver.outlines import ImageEdges
 from solver.pipeline import CONICS_NOT_RIGID, CONICS_NOT_RUN, FOCAL_SCALE_TOLERANCE
 from solver.rigid_axis import RigidAxisConfig
+from tests.solver.spheres import sphere_contour
 
 #: Noise-free recovery at the end of an episode (the issue's bound).
 EXACT_ROT, EXACT_TRANS = 1e-6, 1e-6
@@ -603,3 +607,62 @@ def test_a_linear_rival_at_the_same_pose_keeps_the_family_chain(monkeypatch, off
     kept, why, ran = cal._rival_linear(tracks, [0], moved)
     assert kept is (rival if rival_wins else chain) and why == "" and ran
     assert not cal._from_family  # either way the linear start was tried: the chain is an ordinary one from now on
+
+
+#: Spheres of this radius (m) on the arm's joints (2-7) stand in for its links in the outline stage's tests.
+SPHERE_RADIUS = 0.06
+#: Noise of the synthetic edge points, px.
+EDGE_NOISE_PX = 0.2
+
+
+def _sphere_contours(T, q):
+    """The occluding circles of spheres on joints 2-7 of the Panda at q (n,), seen from T (``ContourRenderer``)."""
+    return sphere_contour(T, [(tuple(PANDA.axis_and_point(q, j)[1]), SPHERE_RADIUS) for j in range(1, 7)])
+
+
+def _sphere_edges(T_true, q, rng) -> OutlineImage:
+    """An image's edges: the spheres' true outlines through the true camera, with noise."""
+    contour = _sphere_contours(T_true, q)
+    cam = contour.points_base @ T_true[:3, :3].T + T_true[:3, 3]
+    px = pixels_from_camera_points(cam, K) + rng.normal(0.0, EDGE_NOISE_PX, (len(cam), 2))
+    return OutlineImage(ImageEdges(px, -contour.outward), q, 0)
+
+
+def _outline_episode(seed, n, config=None):
+    """(tracks alone, tracks and outlines, T_true) after n noisy synthetic motions with two outline images each."""
+    rng = np.random.default_rng(seed)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=30), rng)
+    alone = Calibrator(K, PANDA.axis_and_point)
+    joint = Calibrator(K, PANDA.axis_and_point, config, contours=_sphere_contours)
+    for _ in range(n):
+        motion = scene.random_motion(rng)
+        obs = motion.observation
+        images = []
+        for delta in (0.0, motion.delta):
+            q = obs.q_start.copy()
+            q[obs.joint] += delta
+            images.append(_sphere_edges(T, q, rng))
+        alone.add_motion(obs, outlines=images)  # no contour renderer: ignored
+        joint.add_motion(obs, outlines=images)
+    return alone, joint, T
+
+
+def test_the_outlines_join_the_tracks_pose():
+    alone, joint, T = _outline_episode(5, 8)
+    s = joint.state
+    assert alone.outlines is None and alone.state.outline is None and alone.state.outline_note == ""
+    assert s.outline is not None and s.outline_note == "" and s.outline.n_groups == 8
+    assert np.array_equal(s.T_camera_base, s.outline.T_camera_base) and np.array_equal(s.covariance,
+                                                                                       s.outline.covariance)
+    assert np.all(s.std[3:] < alone.state.std[3:])  # the outlines add information
+    xi = pose_difference(s.T_camera_base, T)
+    assert xi @ np.linalg.solve(s.covariance, xi) < CHI2_6_999
+    assert s.seconds["outlines"] > 0
+
+
+def test_too_few_outline_motions_leave_the_tracks_pose():
+    config = CalibratorConfig(outlines=OutlineFusionConfig(min_groups=20))
+    alone, joint, _ = _outline_episode(5, 6, config)
+    assert joint.state.outline is None and "from 6 motion(s)" in joint.state.outline_note
+    assert np.array_equal(joint.state.T_camera_base, alone.state.T_camera_base)
