@@ -157,6 +157,10 @@ def finish(run: CalibrationRun, args: argparse.Namespace, base_frame: str,
         print(f"time offset (t_joint - t_camera): {(given + s.time_offset_s) * 1e3:+.2f} ms = given "
               f"{given * 1e3:+g} ms + estimated {s.time_offset_s * 1e3:+.2f} ms "
               f"(1-sigma {s.time_offset_std_s * 1e3:.2f} ms)")
+    outlines = run.calibrator.outlines
+    if outlines is not None:
+        print(f"outlines: {outlines.n_images} images of {outlines.n_groups} motions; "
+              + ("combined with the tracks" if s.outline is not None else f"not used ({s.outline_note})"))
     if truth is not None:
         rot, trans = pose_errors(T_camera_base, truth)
         print(f"true error: rotation {rot:.2e} rad ({np.degrees(rot):.4f} deg), translation {trans * 1e3:.3f} mm")

@@ -557,6 +557,11 @@ def result_dict(run: FinishedCalibration, edge: ParentChild, exports: Mapping[st
         "rms_reprojection_px": s.rms_px,
         "time_offset_s": run.given_time_offset_s + (s.time_offset_s or 0.0),
         "time_offset_std_s": s.time_offset_std_s,
+        "outlines": None if run.calibrator.outlines is None else {
+            "images": run.calibrator.outlines.n_images, "motions": run.calibrator.outlines.n_groups,
+            "used": s.outline is not None, "note": s.outline_note,
+            "pairs": None if s.outline is None else s.outline.n_pairs,
+            "sigma_px": None if s.outline is None else s.outline.sigma_px},
         "stage": s.stage,
         "converged": s.converged,
         "frames": frames_dict(edge, optical_frame),

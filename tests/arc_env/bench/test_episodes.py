@@ -202,3 +202,11 @@ def _alive(pid: int) -> bool:
             return f.read().rsplit(")", 1)[1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+def test_outline_frames_mark_the_key_and_need_tracked_arc_calib():
+    assert EpisodeSpec("random", 3, 1).key == "random_1920x1080_m25_p3_s1"
+    assert EpisodeSpec("random", 3, 1, outline_frames=3).key == "random_1920x1080_m25_o3_p3_s1"
+    for bad in ({"oracle": True}, {"method": "marker"}, {"outline_frames": -1}):
+        with pytest.raises(InvalidInputError):
+            EpisodeSpec(**{"method": "random", "pose": 0, "seed": 0, "outline_frames": 3, **bad})

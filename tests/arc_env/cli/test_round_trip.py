@@ -273,3 +273,15 @@ def test_wrong_focal_lengths_are_flagged_not_reported_confidently(recording, tmp
     flagged = code == 1 and "focal lengths do not fit" in text and result["usable"] is False
     assert honest or flagged, (xi, std, text)  # measured: all four flagged (best scale 1.045 / 1.015 / 0.981 / 0.948)
     assert not (tmp_path / "result.tf.sh").exists()
+
+
+def test_the_outline_stage_joins_a_recordings_calibration(recording, tmp_path, capsys):
+    result, text = _calibrate(recording, tmp_path, capsys, "--outline-frames", "3")
+    outlines = result["outlines"]
+    assert outlines["images"] == 27 and outlines["motions"] == 9  # the two pruned motions give none
+    assert outlines["used"] and outlines["note"] == "" and outlines["pairs"] > 1000, outlines
+    assert "combined with the tracks" in text
+    T_true = np.asarray(json.loads(ground_truth_path(recording).read_text())["T_camera_base"])
+    xi = pose_difference(np.asarray(result["T_camera_base"]), T_true)
+    assert xi @ np.linalg.solve(np.asarray(result["covariance"]), xi) < 22.46  # chi-square, 6 dof, 0.999
+    _assert_close_to_truth(result, ground_truth_path(recording))

@@ -395,3 +395,26 @@ def test_the_kinematics_give_the_same_answers_from_several_threads(robot):
     finally:
         sys.setswitchinterval(interval)
     assert mismatches == []
+
+
+@pytest.mark.parametrize("overlap", [False, True], ids=["serial", "overlap"])
+def test_outline_frames_reach_the_calibrator_with_their_configurations(robot, overlap):
+    from arc_env.robot.session import SessionConfig
+
+    executor = _ProjectingExecutor(robot, oracle=False)
+    session = CalibrationSession(robot, OVERLAP_CAMERA, executor, SessionConfig(overlap=overlap, outline_frames=3))
+    session.track = lambda frames, deltas, velocities=None: executor.by_frames[id(frames)]
+    session.reset(np.random.default_rng(0))
+    for k in range(3):
+        session.step(*_motion(robot, k))
+    session.flush()
+    images = session.calibrator.outlines.images
+    assert len(images) == 9 and [im.group for im in images] == [0, 0, 0, 1, 1, 1, 2, 2, 2]
+    for k in range(3):
+        q, joint, delta = _motion(robot, k)
+        for im, frac in zip(images[3 * k:3 * k + 3], (0.0, 6 / 11, 1.0), strict=True):  # frames 0, 6, 11 of 12
+            expected = q.copy()
+            expected[joint] += frac * delta
+            np.testing.assert_allclose(im.q, expected, atol=1e-12)
+    with pytest.raises(InvalidInputError, match="outline_frames"):
+        SessionConfig(outline_frames=-1)
