@@ -64,6 +64,8 @@ ContourRenderer = Callable[[FloatArray, FloatArray], ContourPoints]
 
 #: Finite-difference step of the outline residuals' Jacobian, rad and metres.
 _JACOBIAN_STEP = 1e-6
+#: A Gauss-Newton step, or a pairing's whole move, smaller than this in every parameter (rad, m) ends it.
+_CONVERGED_STEP = 1e-7
 
 
 @dataclass(frozen=True)
@@ -239,18 +241,24 @@ class OutlineAdjustment:
         T = T0 if T_start is None else check_transform(np.asarray(T_start, dtype=np.float64), "T_start")
         rendered = 0
         normal: _Normal | None = None
-        for _ in range(cfg.renders):
-            rendered += self._render_where_moved(T)
+        for round_ in range(cfg.renders):
+            fresh = self._render_where_moved(T)
+            rendered += fresh
+            if round_ and not fresh:  # every contour is where it was: the pairing would be the same
+                break
             for _ in range(cfg.outline.associations):
                 pairs, groups = self._pairs(T)
+                T_paired = T
                 for _ in range(cfg.gauss_newton_steps):
                     normal = self._normal(T, pairs, groups)
                     d = pose_difference(T0, T)
                     H = P + normal.information
                     step = -np.linalg.solve(H, P @ d + normal.gradient)
                     T = perturb(T, step)
-                    if np.max(np.abs(step)) < 1e-9:
+                    if np.max(np.abs(step)) < _CONVERGED_STEP:
                         break
+                if np.max(np.abs(pose_difference(T_paired, T))) < _CONVERGED_STEP:
+                    break
         pairs, groups = self._pairs(T)
         normal = self._normal(T, pairs, groups)
         cov_outline = self._outline_covariance(normal)
