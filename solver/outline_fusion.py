@@ -52,7 +52,7 @@ from solver.outlines import (
     EdgePairs,
     ImageEdges,
     OutlineConfig,
-    outline_residuals,
+    outline_residuals_and_jacobian,
     pair_contour_points,
     project_base_points,
 )
@@ -62,8 +62,6 @@ __all__ = ["ContourRenderer", "OutlineAdjustment", "OutlineFusion", "OutlineFusi
 #: The robot's occluding contour with the arm at q (n,) rad, seen from T_camera_base (4, 4).
 ContourRenderer = Callable[[FloatArray, FloatArray], ContourPoints]
 
-#: Finite-difference step of the outline residuals' Jacobian, rad and metres.
-_JACOBIAN_STEP = 1e-6
 #: A Gauss-Newton step, or a pairing's whole move, smaller than this in every parameter (rad, m) ends it.
 _CONVERGED_STEP = 1e-7
 
@@ -312,13 +310,7 @@ class OutlineAdjustment:
 
     def _normal(self, T: FloatArray, pairs: EdgePairs, groups: FloatArray) -> _Normal:
         """The outlines' whitened normal equations at T (Cauchy weights, scale from the residuals)."""
-        r = outline_residuals(T, pairs.points_base, pairs.edge_points, pairs.normals, self.intrinsics)
-        J = np.empty((len(r), 6))
-        for k in range(6):
-            xi = np.zeros(6)
-            xi[k] = _JACOBIAN_STEP
-            J[:, k] = (outline_residuals(perturb(T, xi), pairs.points_base, pairs.edge_points, pairs.normals,
-                                         self.intrinsics) - r) / _JACOBIAN_STEP
+        r, J = outline_residuals_and_jacobian(T, pairs, self.intrinsics)
         sigma = max(1.4826 * float(np.median(np.abs(r - np.median(r)))), 0.05)
         c = self.config.outline.cauchy_px
         w = 1.0 / (1.0 + (r / c) ** 2) / sigma**2

@@ -39,8 +39,8 @@ from solver.frames import check_transform, perturb
 from solver.observations import CameraIntrinsics
 
 __all__ = ["ContourModel", "ContourPoints", "EdgePairs", "ImageEdges", "OutlineConfig", "OutlineFit",
-           "contour_from_depth", "fit_outline_pose", "image_edges", "outline_residuals", "pair_contour_points",
-           "project_base_points"]
+           "contour_from_depth", "fit_outline_pose", "image_edges", "outline_residuals",
+           "outline_residuals_and_jacobian", "pair_contour_points", "project_base_points"]
 
 
 @dataclass(frozen=True)
@@ -286,6 +286,41 @@ def outline_residuals(T_camera_base: FloatArray, points_base: FloatArray, edge_p
     """
     pixels, _ = project_base_points(T_camera_base, points_base, intrinsics)
     return np.sum((pixels - edge_points) * normals, axis=1)
+
+
+def outline_residuals_and_jacobian(T_camera_base: FloatArray, pairs: EdgePairs, intrinsics: CameraIntrinsics
+                                   ) -> tuple[FloatArray, FloatArray]:
+    """``outline_residuals`` (P,) pixels and their Jacobian (P, 6) by the pose perturbation xi = (omega, tau).
+
+    ``solver.frames.perturb``'s parameters: R <- Exp(omega) R, t <- t + tau, so a point's camera coordinates move by
+    -[p_cam - t]x omega + tau. The projection's derivative by the camera point comes from OpenCV (its Jacobian by
+    the translation, taken at zero rotation and translation); fisheye lenses by central differences.
+    """
+    cam = pairs.points_base @ T_camera_base[:3, :3].T + T_camera_base[:3, 3]
+    rotated = cam - T_camera_base[:3, 3]
+    n = len(cam)
+    front = cam[:, 2] > 1e-6
+    pixels = np.full((n, 2), -1e9)
+    d_pixel = np.zeros((n, 2, 3))  # d pixel / d p_cam
+    if front.any():
+        pts = np.ascontiguousarray(cam[front])
+        if intrinsics.is_fisheye:
+            pixels[front] = pixels_from_camera_points(pts, intrinsics)
+            step = 1e-7 * np.maximum(pts[:, 2:], 1e-3)
+            for k in range(3):
+                e = np.zeros(3)
+                e[k] = 1.0
+                d_pixel[front, :, k] = (pixels_from_camera_points(pts + step * e, intrinsics)
+                                        - pixels_from_camera_points(pts - step * e, intrinsics)) / (2 * step)
+        else:
+            dist = intrinsics.dist if intrinsics.dist.size else np.zeros(5)
+            out, jac = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), intrinsics.K, dist)
+            pixels[front] = out.reshape(-1, 2)
+            d_pixel[front] = jac[:, 3:6].reshape(-1, 2, 3)
+    r = np.sum((pixels - pairs.edge_points) * pairs.normals, axis=1)
+    d_residual = np.einsum("pi,pij->pj", pairs.normals, d_pixel)  # (P, 3): d r / d p_cam
+    # d p_cam / d omega = -[rotated]x, so d r / d omega = rotated x (d r / d p_cam)
+    return r, np.concatenate([np.cross(rotated, d_residual), d_residual], axis=1)
 
 
 def fit_outline_pose(T_init: FloatArray, edges: Sequence[ImageEdges], model: ContourModel,

@@ -5,14 +5,17 @@ import pytest
 
 from solver.errors import InsufficientMotionsError, InvalidInputError
 from solver.frames import perturb, pose_difference, transform_from_rt
+from solver.observations import CameraIntrinsics
 from solver.outlines import (
     ContourPoints,
+    EdgePairs,
     ImageEdges,
     OutlineConfig,
     contour_from_depth,
     fit_outline_pose,
     image_edges,
     outline_residuals,
+    outline_residuals_and_jacobian,
 )
 from tests.solver.spheres import CAMERA, T_TRUE, K, project_px, render_spheres, sphere_contour, sphere_depth
 
@@ -121,3 +124,27 @@ def test_the_pose_is_recovered_with_contours_from_rendered_depth(edges):
 def test_contour_from_depth_refuses_mismatched_images():
     with pytest.raises(InvalidInputError, match="one shape"):
         contour_from_depth(np.zeros((4, 4)), np.zeros((4, 5), bool), np.eye(4), K)
+
+
+@pytest.mark.parametrize("camera", ["pinhole", "distorted", "fisheye"])
+def test_the_outline_jacobian_is_the_finite_differences(camera):
+    intrinsics = {"pinhole": CAMERA,
+                  "distorted": CameraIntrinsics(K, np.array([0.08, -0.02, 0.001, 0.0005, 0.0]), 640, 480),
+                  "fisheye": CameraIntrinsics(K, np.array([0.02, -0.01, 0.003, 0.0]), 640, 480, model="fisheye"),
+                  }[camera]
+    rng = np.random.default_rng(3)
+    pairs = EdgePairs(rng.uniform(-0.15, 0.15, (40, 3)), rng.uniform(100, 500, (40, 2)),
+                      (lambda n: n / np.linalg.norm(n, axis=1, keepdims=True))(rng.normal(size=(40, 2))))
+    r, J = outline_residuals_and_jacobian(T_TRUE, pairs, intrinsics)
+    np.testing.assert_allclose(r, outline_residuals(T_TRUE, pairs.points_base, pairs.edge_points, pairs.normals,
+                                                    intrinsics), atol=1e-9)
+    h = 1e-6
+
+    def at(xi):
+        return outline_residuals(perturb(T_TRUE, xi), pairs.points_base, pairs.edge_points, pairs.normals, intrinsics)
+
+    for k in range(6):
+        xi = np.zeros(6)
+        xi[k] = h
+        numeric = (at(xi) - at(-xi)) / (2 * h)
+        np.testing.assert_allclose(J[:, k], numeric, rtol=1e-4, atol=1e-3)
