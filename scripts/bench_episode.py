@@ -318,6 +318,9 @@ def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], n_moti
     out["pose_by_5_fraction"] = pose_by_fraction(tracked, POSE_BY, n_motions)
     out.update(convergence_figures(tracked))
     out.update(coverage_figures(tracked))
+    with_outlines = [r for r in tracked if r["spec"].get("outline_frames")]
+    out["outline_runs"] = len(with_outlines)
+    out["outline_used_at_end"] = sum(bool(r.get("outline_curve") and r["outline_curve"][-1]) for r in with_outlines)
     out["realism"], out["appearance"] = realism, appearance
     if realism == "realistic":
         out["targets"] = realistic_targets(out, size[1])
@@ -353,6 +356,10 @@ def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], n_moti
               f"{out['runs_with_coverage_at_end']} runs, after {out['coverage_95_updates']:.0%} of "
               f"{out['updates_with_coverage']} updates (median chi-square {out['chi2_updates_median']:.2f}; "
               f"{CHI2_6_MEDIAN:.2f} if calibrated, lower: a region wider than the errors)")
+    if out["outline_runs"]:
+        notes = sorted({r["outline_note"] for r in with_outlines if r.get("outline_note")})
+        print(f"the outlines joined the estimate at the end of {out['outline_used_at_end']} of {out['outline_runs']} "
+              "runs" + (f"; not: {'; '.join(n[:100] for n in notes)}" if notes else ""))
     if "targets" in out:
         print(targets_line(out, n_motions))
     return out
