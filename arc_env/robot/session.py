@@ -829,7 +829,7 @@ def calibrate_reading_offset(read: Callable[[float], Recording], given_s: float 
         raise InvalidInputError(f"max_passes must be >= 1, got {max_passes}")
     offset = given_s
     for _ in range(max_passes):
-        run = calibrate_recording(read(offset), tracker, config, on_motion, observer, outline_frames)
+        run = calibrate_recording(read(offset), tracker, config, on_motion, observer, outline_frames=outline_frames)
         s = run.calibrator.state
         if (s.time_offset_s is None or s.time_offset_std_s is None
                 or abs(s.time_offset_s) <= max(OFFSET_PASS_TOL_S, OFFSET_PASS_SIGMAS * s.time_offset_std_s)):

@@ -106,7 +106,7 @@ def test_the_joints_are_read_again_at_the_corrected_time_offset(monkeypatch):
 
     true_offset, reads = 0.020, []
 
-    def fake_calibrate(recording, tracker=None, config=None, on_motion=None, observer=None):
+    def fake_calibrate(recording, tracker=None, config=None, on_motion=None, observer=None, outline_frames=0):
         remaining = true_offset - recording.time_offset_s
         state = SimpleNamespace(time_offset_s=0.8 * remaining, time_offset_std_s=0.0002)
         return SimpleNamespace(calibrator=SimpleNamespace(state=state), recording=recording)
