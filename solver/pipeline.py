@@ -141,8 +141,10 @@ class CalibratorConfig:
         relinearize_sigma: see ``incremental``.
         relinearize_every: see ``incremental``.
         outlines: the outline stage (``solver.outline_fusion``), when the calibrator is given a contour renderer
-            and motions bring outline images: every update adjusts the refined pose of the tracks together with
-            the robot's outlines in those images, and the state reports the joint pose and covariance.
+            and motions bring outline images: every update with a refined pose combines it with the robot's
+            outlines in those images (from where the last update's combination ended), and the state reports the
+            combined pose and covariance (``CalibrationState.outline``); the tracks' own chain of estimates, which
+            the next update starts from, is not changed by it.
     """
 
     motion: MotionConfig = field(default_factory=MotionConfig)
