@@ -40,6 +40,7 @@ def _add_look_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``arc-calib`` console script."""
+    from arc_env.cli.calibrate import add_arguments, add_outline_argument
     from arc_env.cli.viewer import add_rerun_arguments
 
     parser = argparse.ArgumentParser(prog="arc-calib", description="Markerless camera-to-robot calibration.")
@@ -67,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
                       help="motion selection: random (the paper) or informed (ours; default random)")
     _add_look_arguments(demo)
     add_rerun_arguments(demo)
+    add_outline_argument(demo)
     record = sub.add_parser("record", help="simulate an episode and write it as a recording (docs/recording-format.md)")
     record.add_argument("--out", required=True, metavar="DIR",
                         help="the recording directory to create; the ground truth goes to DIR.ground_truth.json")
@@ -101,7 +103,6 @@ def main(argv: list[str] | None = None) -> int:
                              "it) instead of one sampled from --seed")
     _add_look_arguments(record)
     calibrate = sub.add_parser("calibrate", help="calibrate from a recording; write the result and ROS exports")
-    from arc_env.cli.calibrate import add_arguments
     from arc_env.cli.result import add_result_arguments
 
     add_arguments(calibrate)
@@ -122,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
                      help="continue from the motions of an earlier run's recording (it is read, never written)")
     add_result_arguments(run)
     add_rerun_arguments(run)
+    add_outline_argument(run)
     export = sub.add_parser("export", help="rewrite the ROS exports of a result.json without recalibrating")
     from arc_env.cli.export import add_arguments as add_export_arguments
 

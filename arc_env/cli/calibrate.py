@@ -192,10 +192,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_input_arguments(parser)
     parser.add_argument("--ground-truth", metavar="FILE",
                         help="a <recording>.ground_truth.json (simulated recordings): also print the true error")
-    parser.add_argument("--outline-frames", type=int, default=0, metavar="N",
-                        help="adjust the pose with the robot's outlines in N images per motion as well (its model "
-                             "rendered offscreen: needs EGL or OSMesa); default 0: the tracks alone")
+    add_outline_argument(parser)
     add_rerun_arguments(parser)
+
+
+def add_outline_argument(parser: argparse.ArgumentParser) -> None:
+    """``--outline-frames N``: the outline stage (``SessionConfig.outline_frames``), for calibrate, run and demo."""
+    parser.add_argument("--outline-frames", type=int, default=0, metavar="N",
+                        help="combine the tracks' pose with the robot's outlines in N images per motion (its model "
+                             "rendered offscreen: needs EGL or OSMesa); default 0: the tracks alone")
 
 
 def add_input_arguments(parser: argparse.ArgumentParser, time_offset_default: str = "default 0") -> None:

@@ -46,7 +46,7 @@ def run_demo(args: argparse.Namespace) -> int:
     scene = SceneConfig(robot=robot, width=args.width, height=args.height,
                         **realism_settings(args.realism, args.appearance))
     config = EnvConfig(scene=scene, max_motions=args.motions, oracle_keypoints=args.oracle,
-                       oracle_noise_px=args.noise)
+                       oracle_noise_px=args.noise, outline_frames=0 if args.oracle else args.outline_frames)
     env = ArcCalibEnv(config)
     try:
         return _episode(env, args)

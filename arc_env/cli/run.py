@@ -91,7 +91,8 @@ def run_online(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     informed = getattr(args, "planner", "random") == "informed"
     overlap = bool(getattr(args, "overlap", False))
-    session = driver_session(driver, SessionConfig(overlap=overlap), on_sweep)
+    session = driver_session(driver, SessionConfig(overlap=overlap, outline_frames=getattr(args, "outline_frames", 0)),
+                             on_sweep)
     log = open_rerun_log(args, session.robot, driver.intrinsics, f"run {args.driver}",
                          getattr(driver, "T_camera_base_true", None))  # simulated drivers know the truth
     session.observer = log
