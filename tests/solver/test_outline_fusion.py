@@ -1,5 +1,7 @@
 """solver.outline_fusion: the tracks' pose and the outlines adjusted together, on spheres seen by a known camera."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -20,6 +22,8 @@ VAGUE = np.diag([0.1, 0.1, 0.1, 0.2, 0.2, 0.2]) ** 2
 ROT_TOL, TRANS_TOL = 5e-4, 3e-4
 #: chi-square, 6 dof, 0.999: an honest covariance holds the error within it.
 CHI2_999 = 22.46
+#: The settings with no limit on how uncertain the prior may be (VAGUE moves the contours by metres' worth).
+UNLIMITED = OutlineFusionConfig(max_prior_px=np.inf)
 
 
 def _renderer(T: np.ndarray, q: np.ndarray):
@@ -33,7 +37,7 @@ def edges() -> list[ImageEdges]:
 
 def _adjustment(edges, config=None, groups=None) -> OutlineAdjustment:
     """The images as motions 0-5 (or ``groups``)."""
-    adjustment = OutlineAdjustment(_renderer, CAMERA, config)
+    adjustment = OutlineAdjustment(_renderer, CAMERA, config or UNLIMITED)
     for k, image in enumerate(edges):
         adjustment.add(OutlineImage(image, np.array([float(k)]), k if groups is None else groups[k]))
     return adjustment
@@ -56,7 +60,7 @@ def test_a_vague_prior_gives_the_outlines_pose(edges):
 
 def test_a_tight_prior_holds_the_pose(edges):
     prior = perturb(T_TRUE, 0.1 * START)  # 0.9 mm off, 1-sigma 10 nm: the outlines (1-sigma ~5 um) barely move it
-    fusion = _adjustment(edges, OutlineFusionConfig(max_disagreement_chi2=1e9)).fuse(prior, np.eye(6) * 1e-16)
+    fusion = _adjustment(edges, replace(UNLIMITED, max_disagreement_chi2=1e9)).fuse(prior, np.eye(6) * 1e-16)
     assert np.linalg.norm(pose_difference(fusion.T_camera_base, prior)) < 1e-6
 
 
@@ -72,8 +76,8 @@ def test_the_edge_offsets_are_in_the_covariance(edges, shift):
             adjustment.add(OutlineImage(ImageEdges(image.points + move, image.normals), np.array([float(k)]), k))
         return adjustment.fuse(start, VAGUE)
 
-    honest = fused(OutlineFusionConfig(edge_offset_px=0.3, floor_px=0.0))
-    blind = fused(OutlineFusionConfig(edge_offset_px=0.0, floor_px=0.0))
+    honest = fused(replace(UNLIMITED, edge_offset_px=0.3, floor_px=0.0))
+    blind = fused(replace(UNLIMITED, edge_offset_px=0.0, floor_px=0.0))
     assert np.linalg.norm(pose_difference(honest.T_camera_base, T_TRUE)[3:]) > TRANS_TOL  # the offset shows
     assert _chi2(honest.T_camera_base, honest.covariance) < CHI2_999
     assert _chi2(blind.T_camera_base, blind.covariance) > CHI2_999  # the textbook covariance does not
@@ -85,6 +89,14 @@ def test_settled_images_are_not_rendered_again(edges):
     again = adjustment.fuse(perturb(T_TRUE, START), VAGUE, first.T_camera_base)
     assert again.rendered == 0
     assert np.linalg.norm(pose_difference(again.T_camera_base, first.T_camera_base)) < 1e-5
+
+
+def test_a_prior_too_uncertain_to_pair_by_is_refused(edges):
+    """The default reach: 8 px RMS. A 1-sigma of 20 cm moves these contours by far more; 0.1 mm by far less."""
+    with pytest.raises(InsufficientMotionsError, match="too uncertain for the outlines"):
+        _adjustment(edges, OutlineFusionConfig()).fuse(perturb(T_TRUE, START), VAGUE)
+    near = np.diag([1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4]) ** 2
+    assert _adjustment(edges, OutlineFusionConfig()).fuse(T_TRUE, near).n_groups == 6
 
 
 def test_outlines_that_disagree_with_the_tracks_are_refused(edges):
