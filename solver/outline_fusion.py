@@ -41,7 +41,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import eigh
 
 from solver.arrays import FloatArray
 from solver.errors import InsufficientMotionsError, InvalidInputError
@@ -56,6 +55,7 @@ from solver.outlines import (
     pair_contour_points,
     project_base_points,
 )
+from solver.refinement import conservative_covariance
 
 __all__ = ["ContourRenderer", "OutlineAdjustment", "OutlineFusion", "OutlineFusionConfig", "OutlineImage"]
 
@@ -243,7 +243,7 @@ class OutlineAdjustment:
                                            f"at least {cfg.min_groups} are needed")
         T = T0 if T_start is None else check_transform(np.asarray(T_start, dtype=np.float64), "T_start")
         rendered = 0
-        normal_first: _Normal | None = None
+        reach_checked = False
         for round_ in range(cfg.renders):
             fresh = self._render_where_moved(T)
             rendered += fresh
@@ -254,9 +254,9 @@ class OutlineAdjustment:
                 T_paired = T
                 for _ in range(cfg.gauss_newton_steps):
                     normal = self._normal(T, pairs, groups)
-                    if normal_first is None:
-                        normal_first = normal
+                    if not reach_checked:  # at the start's first pairing
                         self._check_prior_reach(normal, C0)
+                        reach_checked = True
                     d = pose_difference(T0, T)
                     H = P + normal.information
                     step = -np.linalg.solve(H, P @ d + normal.gradient)
@@ -349,14 +349,11 @@ class OutlineAdjustment:
         G = len(normal.group_scores)
         centred = normal.group_scores - normal.group_scores.mean(axis=0)
         B = centred.T @ centred * G / max(G - 1, 1)
-        # The meat: the clustered scatter where it exceeds the model's information (A itself, in whitened units),
-        # in A's eigen-directions.
-        lam, V = eigh(B, A)
-        AV = A @ V
-        meat = AV @ np.diag(np.maximum(lam, 1.0)) @ AV.T
         A_inv = np.linalg.inv(A)
+        # the clustered sandwich where it exceeds the model's covariance, in the model's eigen-directions
+        cov = conservative_covariance(A_inv, A_inv @ B @ A_inv)
         offset = A_inv @ normal.offset_gradient
-        cov = A_inv @ (0.5 * (meat + meat.T)) @ A_inv + self.config.edge_offset_px**2 * offset @ offset.T
+        cov = cov + self.config.edge_offset_px**2 * offset @ offset.T
         if self.config.floor_px > 0:
             cov += self.config.floor_px**2 * np.linalg.inv(normal.mean_information)
         return 0.5 * (cov + cov.T)
