@@ -38,7 +38,7 @@ differs from the part). Three guards:
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -51,6 +51,7 @@ from solver.outlines import (
     EdgePairs,
     ImageEdges,
     OutlineConfig,
+    outline_residuals,
     outline_residuals_and_jacobian,
     pair_contour_points,
     project_base_points,
@@ -111,6 +112,14 @@ class OutlineFusionConfig:
             several clusters).
         max_disagreement_chi2: the fused pose is refused when it lies further than this from the tracks' pose
             (Mahalanobis, under the sum of the tracks' and the outlines' covariances; chi-square, 6 dof, 0.999).
+        min_groups_along: fewest motions with images for ``fuse`` with a free direction (it serves the first
+            motions, whose tracks may leave the depth free: the Panda's joints 1-3 alone).
+        search_px: ``search_along`` first scores each contour point's distance to its nearest edge capped at this,
+            pixels (a wide basin for a coarse grid); each later round halves it, down to
+            ``OutlineConfig.max_match_px``.
+        search_rounds: rounds of ``search_along`` (each renders every image at the best pose so far and searches
+            again between the best offset's neighbours).
+        search_samples: offsets per refining round.
     """
 
     outline: OutlineConfig = OutlineConfig()
@@ -122,12 +131,19 @@ class OutlineFusionConfig:
     max_prior_px: float = 8.0
     min_groups: int = 6
     max_disagreement_chi2: float = 22.46
+    min_groups_along: int = 3
+    search_px: float = 32.0
+    search_rounds: int = 3
+    search_samples: int = 9
 
     def __post_init__(self) -> None:
         if not (self.rerender_px > 0 and self.edge_offset_px >= 0 and self.max_disagreement_chi2 > 0):
             raise InvalidInputError("need rerender_px > 0, edge_offset_px >= 0 and max_disagreement_chi2 > 0")
-        if min(self.renders, self.gauss_newton_steps, self.min_groups) < 1:
-            raise InvalidInputError("renders, gauss_newton_steps and min_groups must be >= 1")
+        if min(self.renders, self.gauss_newton_steps, self.min_groups, self.min_groups_along, self.search_rounds) < 1:
+            raise InvalidInputError("renders, gauss_newton_steps, min_groups, min_groups_along and search_rounds must "
+                                    "be >= 1")
+        if not (self.search_px > 0 and self.search_samples >= 3):
+            raise InvalidInputError("need search_px > 0 and search_samples >= 3")
 
 
 @dataclass(frozen=True)
@@ -213,8 +229,8 @@ class OutlineAdjustment:
         """Keep one image for the next ``fuse``."""
         self._images.append(_Cached(image))
 
-    def fuse(self, T_prior: FloatArray, covariance_prior: FloatArray, T_start: FloatArray | None = None
-             ) -> OutlineFusion:
+    def fuse(self, T_prior: FloatArray, covariance_prior: FloatArray, T_start: FloatArray | None = None,
+             free_direction: FloatArray | None = None) -> OutlineFusion:
         """The pose that fits the tracks' estimate (a Gaussian prior) and every image's outlines.
 
         Args:
@@ -222,28 +238,95 @@ class OutlineAdjustment:
             covariance_prior: (6, 6) float64: its covariance of (omega rad, tau m).
             T_start: (4, 4) float64: where the adjustment starts (e.g. the last fused pose); None: T_prior. It
                 must put the outlines within ``OutlineConfig.max_match_px`` of the images' edges.
+            free_direction: (3,) a translation direction (camera frame) that the tracks leave free and the caller
+                has searched (``search_along``: T_start is its best pose): the prior's reach is judged without it,
+                and images from ``min_groups_along`` motions suffice.
 
         Raises:
-            InvalidInputError: a non-rigid pose, or a covariance that is not finite, symmetric positive definite.
+            InvalidInputError: a non-rigid pose, a covariance that is not finite, symmetric positive definite, or a
+                bad direction.
             InsufficientMotionsError: images from fewer than ``min_groups`` motions, too few contour points pair
                 with an edge, or the fused pose disagrees with the tracks' (the message gives the distance).
         """
-        cfg = self.config
         T0 = check_transform(np.asarray(T_prior, dtype=np.float64), "T_prior")
-        C0 = np.asarray(covariance_prior, dtype=np.float64)
-        if C0.shape != (6, 6) or not np.all(np.isfinite(C0)) or not np.allclose(C0, C0.T, rtol=1e-9, atol=0.0):
-            raise InvalidInputError("the prior covariance must be a finite symmetric (6, 6) array")
+        C0 = _symmetric(covariance_prior, "the prior covariance")
         try:
             L_inv = np.linalg.inv(np.linalg.cholesky(C0))
         except np.linalg.LinAlgError as exc:
             raise InvalidInputError("the prior covariance is not positive definite") from exc
-        P = L_inv.T @ L_inv  # the tracks' information on the pose
-        if self.n_groups < cfg.min_groups:
-            raise InsufficientMotionsError(f"outline images from {self.n_groups} motion(s); "
-                                           f"at least {cfg.min_groups} are needed")
+        reach = C0
+        if free_direction is not None:
+            w = np.concatenate([np.zeros(3), _unit(free_direction)])
+            Q = np.eye(6) - np.outer(w, w)
+            reach = Q @ C0 @ Q
+        self._require_groups(self.config.min_groups if free_direction is None else self.config.min_groups_along)
         T = T0 if T_start is None else check_transform(np.asarray(T_start, dtype=np.float64), "T_start")
-        rendered = 0
+        return self._fuse(T0, L_inv.T @ L_inv, T, reach)
+
+    def search_along(self, T: FloatArray, direction: FloatArray, offsets: FloatArray) -> tuple[FloatArray, float]:
+        """The translation along a direction the tracks leave free that puts the robot's contours on the edges.
+
+        The joints whose axes all meet in one point (the Panda's joints 1-3) turn the robot about that point, and the
+        tracks of their motions fit every camera pose on the line from it to the camera alike (their points scale
+        along). The robot's outlines have its size: the poses T + s ``direction`` (s in ``offsets``) are scored by
+        the mean over contour points of min(d, cap)^2, d the distance to the nearest edge of a matching direction,
+        with every image's contour rendered at T; then, ``search_rounds`` times, rendered again at the best pose
+        and searched between the best offset's neighbours, the cap halved each round (from ``search_px`` down to
+        ``OutlineConfig.max_match_px``).
+
+        Args:
+            T: (4, 4) float64: a pose on the line (the tracks').
+            direction: (3,) the line's direction in the camera frame.
+            offsets: (S,) m, S >= 2: the translations to score first (e.g. ``solver.calibration.family_offsets``).
+
+        Returns:
+            The best pose (4, 4) (its contours cached for ``fuse``), and the spacing of the last offsets there, m.
+
+        Raises:
+            InvalidInputError: a non-rigid pose, a bad direction or offsets.
+            InsufficientMotionsError: no images, or no offset puts the contours within the last cap of the edges.
+        """
+        cfg = self.config
+        T0 = check_transform(np.asarray(T, dtype=np.float64), "T")
+        u = _unit(direction)
+        offsets = np.unique(np.asarray(offsets, dtype=np.float64).reshape(-1))
+        if offsets.size < 2 or not np.all(np.isfinite(offsets)):
+            raise InvalidInputError("need at least two finite offsets to search")
+        if not self._images:
+            raise InsufficientMotionsError("no outline images to search with")
+        cap = cfg.search_px
+        best_T = T0
+        step = float("nan")
+        for round_ in range(cfg.search_rounds):
+            for cached in self._images:  # the contours from the best pose so far
+                cached.contour, cached.T_rendered = self.renderer(best_T, cached.image.q), best_T.copy()
+            shifted = [_translated(T0, s * u) for s in offsets]
+            scores = np.array([self._capped_score(candidate, cap) for candidate in shifted])
+            if not np.isfinite(scores).any():
+                raise InsufficientMotionsError("no pose along the free direction puts the robot's contour in front "
+                                               "of the camera")
+            i = int(np.nanargmin(scores))
+            best_T = shifted[i]
+            lo, hi = offsets[max(i - 1, 0)], offsets[min(i + 1, len(offsets) - 1)]
+            step = float(hi - lo) / 2
+            if round_ + 1 < cfg.search_rounds:
+                offsets = np.linspace(lo, hi, cfg.search_samples)
+                cap = max(cap / 2, cfg.outline.max_match_px)
+            elif scores[i] >= cap**2:
+                raise InsufficientMotionsError(f"no pose along the free direction puts the robot's contour within "
+                                               f"{cap:g} px of the images' edges")
+        return best_T, step
+
+    def _require_groups(self, fewest: int) -> None:
+        if self.n_groups < fewest:
+            raise InsufficientMotionsError(f"outline images from {self.n_groups} motion(s); at least {fewest} are "
+                                           "needed")
+
+    def _fuse(self, T0: FloatArray, P: FloatArray, T: FloatArray, reach_covariance: FloatArray) -> OutlineFusion:
+        """The adjustment from T with the tracks' pose T0 and information P (6, 6) as the prior; the combination."""
+        cfg = self.config
         reach_checked = False
+        rendered = 0
         for round_ in range(cfg.renders):
             fresh = self._render_where_moved(T)
             rendered += fresh
@@ -255,7 +338,7 @@ class OutlineAdjustment:
                 for _ in range(cfg.gauss_newton_steps):
                     normal = self._normal(T, pairs, groups)
                     if not reach_checked:  # at the start's first pairing
-                        self._check_prior_reach(normal, C0)
+                        self._check_prior_reach(normal, reach_covariance)
                         reach_checked = True
                     d = pose_difference(T0, T)
                     H = P + normal.information
@@ -268,22 +351,43 @@ class OutlineAdjustment:
         pairs, groups = self._pairs(T)
         normal = self._normal(T, pairs, groups)
         cov_outline = self._outline_covariance(normal)
+        information_outline = np.linalg.inv(cov_outline)
         # The outlines' own estimate (relative to the tracks' pose): one Newton step without the prior from the joint
         # fit, where P d + gradient = 0. It and the tracks' are combined by their honest covariances, so a direction
         # the outlines fix less surely than their raw information says keeps the tracks' weight.
         d = pose_difference(T0, T)
         xi_outline = d + np.linalg.solve(normal.information, P @ d)
-        disagreement = float(xi_outline @ np.linalg.solve(C0 + cov_outline, xi_outline))
+        # (C_tracks + C_outline)^-1 in information form, well conditioned where the tracks leave a direction free
+        disagreement = float(xi_outline @ (P - P @ np.linalg.solve(P + information_outline, P)) @ xi_outline)
         if disagreement > cfg.max_disagreement_chi2:
             raise InsufficientMotionsError(
                 f"the outlines disagree with the tracks: their pose lies {np.sqrt(disagreement):.1f} sigma from the "
                 f"tracks' (at most {np.sqrt(cfg.max_disagreement_chi2):.1f}); the robot model may not match the "
                 "robot, or other edges lie along its outline")
-        information_outline = np.linalg.inv(cov_outline)
         cov = np.linalg.inv(P + information_outline)
         cov = 0.5 * (cov + cov.T)
         return OutlineFusion(perturb(T0, cov @ information_outline @ xi_outline), cov, cov_outline, disagreement,
                              normal.n_pairs, len(self._images), self.n_groups, normal.sigma_px, rendered)
+
+    def _capped_score(self, T: FloatArray, cap_px: float) -> float:
+        """Mean over every image's contour points in front of the camera of min(d, cap_px)^2, px^2.
+
+        d: the distance along its normal to the nearest edge of a matching direction (cap_px for a point with none
+        within cap_px). NaN when no point is in front.
+        """
+        config = replace(self.config.outline, max_match_px=cap_px)
+        total, count = 0.0, 0
+        for cached in self._images:
+            assert cached.contour is not None
+            n = len(cached.contour.points_base)
+            if n == 0:
+                continue
+            _, front = project_base_points(T, cached.contour.points_base, self.intrinsics)
+            pairs = pair_contour_points(T, [cached.contour], [cached.image.edges], self.intrinsics, config)
+            r = outline_residuals(T, pairs.points_base, pairs.edge_points, pairs.normals, self.intrinsics)
+            total += float(np.sum(np.minimum(r**2, cap_px**2))) + (int(front.sum()) - len(r)) * cap_px**2
+            count += int(front.sum())
+        return total / count if count else float("nan")
 
     def _check_prior_reach(self, normal: _Normal, covariance_prior: FloatArray) -> None:
         """Refuse a tracks' pose so uncertain that pairing its contours with the nearest edges would be a guess.
@@ -357,3 +461,26 @@ class OutlineAdjustment:
         if self.config.floor_px > 0:
             cov += self.config.floor_px**2 * np.linalg.inv(normal.mean_information)
         return 0.5 * (cov + cov.T)
+
+
+def _symmetric(matrix: FloatArray, what: str) -> FloatArray:
+    """A finite symmetric (6, 6) float64 array, or InvalidInputError naming ``what``."""
+    M = np.asarray(matrix, dtype=np.float64)
+    if M.shape != (6, 6) or not np.all(np.isfinite(M)) or not np.allclose(M, M.T, rtol=1e-9, atol=0.0):
+        raise InvalidInputError(f"{what} must be a finite symmetric (6, 6) array")
+    return M
+
+
+def _translated(T: FloatArray, shift: FloatArray) -> FloatArray:
+    """T (4, 4) with its translation moved by shift (3,) m in the camera frame."""
+    out = T.copy()
+    out[:3, 3] += shift
+    return out
+
+
+def _unit(direction: FloatArray) -> FloatArray:
+    """A (3,) direction normalized, or InvalidInputError."""
+    u = np.asarray(direction, dtype=np.float64).reshape(-1)
+    if u.shape != (3,) or not np.all(np.isfinite(u)) or np.linalg.norm(u) == 0:
+        raise InvalidInputError("the free direction must be a finite non-zero (3,) array")
+    return u / np.linalg.norm(u)

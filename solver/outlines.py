@@ -251,8 +251,10 @@ def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoi
     direction, or behind the camera, are left out.
     """
     cos_min = np.cos(np.radians(config.max_normal_angle_deg))
-    parts: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+    parts: list[tuple[FloatArray, FloatArray, FloatArray]] = [(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)))]
     for contour, image in zip(contours, edges, strict=True):
+        if len(image.points) == 0:  # an image without edges pairs nothing
+            continue
         pixels, visible = project_base_points(T_camera_base, contour.points_base, intrinsics)
         idx, found = image.nearest(pixels, config.max_match_px)
         normals = image.normals[idx]

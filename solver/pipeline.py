@@ -52,17 +52,19 @@ from solver.refinement import (
     RefinementResult,
     TrackSet,
     build_track_set,
+    conservative_covariance,
     newest_motion_leverage,
     refine,
     refine_increment,
     reprojection_residuals,
     screen_start,
+    track_information,
     track_observability,
 )
 from solver.rigid_axis import RigidAxisConfig, geometry_from_rigid_fit, rigid_axis_of_motion
 
 Stage = Literal["none", "linear", "refined"]
-Start = Literal["", "previous", "linear", "family"]
+Start = Literal["", "previous", "linear", "family", "outlines"]
 
 
 @dataclass(frozen=True)
@@ -246,7 +248,9 @@ class CalibrationState:
         seconds: wall time of this update's stages, {"linear": s, "refined": s}.
         start: where the bundle adjustment that gave the refined pose started: "previous" (the last
             refined pose), "linear", "family" (a member of the motions' pose family:
-            ``CalibratorConfig.family_start``), or "" (no refined pose).
+            ``CalibratorConfig.family_start``), "outlines" (the tracks leave a direction free, e.g. the
+            depth of the Panda's joints 1-3 alone, and the robot's outlines fixed it: ``outline`` holds the
+            adjustment; such a pose never declares convergence), or "" (no refined pose).
         time_offset_s: s, the time offset the bundle adjustment estimated between the joint and camera
             clocks, on top of the one the joint values were read with (``solver.refinement``); None when
             not estimated (``RefinementConfig.estimate_time_offset``) or no refined pose.
@@ -331,6 +335,10 @@ FAMILY_MARGIN = 0.1
 #: Comparing their fits there compares round-off (seen: 1.1e-8 sigma apart, the winner flipping when unrelated code
 #: changed its arithmetic, and the later updates 0.46 sigma apart for a few motions).
 RIVAL_SAME_SIGMA = 0.01
+#: Poses along the tracks' free direction that ``Calibrator._outline_rescue`` first scores with the outlines: where
+#: the motions' joints lie this many log-spaced distances from the camera within ``family_distances`` (0.3-5 m: 7 %
+#: apart; ``OutlineAdjustment.search_along`` then searches between the best one's neighbours).
+OUTLINE_SEARCH_SAMPLES = 40
 
 
 def _geometric_std(refined: RefinementResult) -> FloatArray:
@@ -572,12 +580,18 @@ class Calibrator:
         if refined is not None:
             self._refined = refined
         t_refined = time.perf_counter()
+        rescued, rescue_note = None, ""
+        if refined is None and cfg.refine and self.outlines is not None and live:
+            rescued, rescue_note = self._outline_rescue(live, with_axis, linear,
+                                                        tracks if tracks is not None else self._track_set(live))
         self._update_reports(live, with_axis, linear, refined,
                              np.array([self._inlier_counts.get(k, 0) for k in live]) if refined is not None else None)
 
         T: FloatArray | None
         if refined is not None:
             T, stage = refined.T_camera_base, "refined"
+        elif rescued is not None:
+            T, stage, start_kind = rescued.T_camera_base, "refined", "outlines"
         elif linear is not None and not cfg.refine:
             T, stage = linear.T_camera_base, "linear"
         else:
@@ -587,7 +601,7 @@ class Calibrator:
             T, stage = None, "none"
             if linear is not None:
                 message = f"the linear estimate is not confirmed by the bundle adjustment: {message}"
-        outline, outline_note = None, ""
+        outline, outline_note = rescued, rescue_note
         if refined is not None and self.outlines is not None and self.outlines.n_images:
             try:
                 last = self.state.outline  # the adjustment goes on from where the last one ended
@@ -597,12 +611,12 @@ class Calibrator:
             except (ArcCalibError, np.linalg.LinAlgError) as exc:
                 outline_note = f"{type(exc).__name__}: {exc}"
         t_outline = time.perf_counter()
-        if T is not None and self._enters_window(refined, live):
+        if T is not None and rescued is None and self._enters_window(refined, live):
             self._monitor.push(T)
             self._window_motions = len(self._motions)
-        cov = (outline.covariance if outline is not None else refined.covariance) if refined is not None else None
+        cov = outline.covariance if outline is not None else refined.covariance if refined is not None else None
         std = np.sqrt(np.diag(cov)) if cov is not None else None
-        converged = self._monitor.converged and (
+        converged = rescued is None and self._monitor.converged and (
             stage == "linear" and not cfg.refine
             or stage == "refined" and std is not None
             and bool(np.all(std[:3] < cfg.convergence.max_rotation_range)
@@ -616,12 +630,75 @@ class Calibrator:
             rms_px=refined.rms_px if refined is not None else None,
             message="" if T is not None else message,
             seconds={"linear": t_linear - t_start, "refined": t_refined - t_linear, "outlines": t_outline - t_refined},
-            start=start_kind if refined is not None else "",
+            start=start_kind if T is not None and stage == "refined" else "",
             time_offset_s=refined.time_offset_s if refined is not None else None,
             time_offset_std_s=refined.time_offset_std_s if refined is not None else None,
             outline=outline, outline_note=outline_note,
         )
         return self.state
+
+    def _outline_rescue(self, live: list[int], with_axis: list[int], linear: ConsensusResult | None,
+                        tracks: TrackSet) -> tuple[OutlineFusion | None, str]:
+        """The outlines' fix of the direction the tracks leave free, when the tracks give no refined pose.
+
+        From the linear pose, or else a member of the motions' pose family, a short pass of the bundle adjustment
+        (``screen_start``); there the tracks' weakest direction (``track_information``, the translation scaled by
+        the joints' depth), which must be a translation u; the bundle adjustment held along u by a weak prior
+        (``refine``'s ``free_direction``: its covariance is the honest one elsewhere); the outlines' search along u
+        where the motions' joints lie ``family_distances`` from the camera (``OutlineAdjustment.search_along``) and
+        their adjustment from there with the tracks' pose and covariance as the prior (``fuse``). Measured on
+        realistic Panda episodes whose first motions turned joints 1-3 only: ``docs/realistic-imaging.md``.
+
+        Returns:
+            (the fusion, "") when it fixes the pose within ``max_std_*``; (None, why not) when it was tried and
+            failed; (None, "") when there is nothing to try it with.
+        """
+        cfg = self.config
+        assert self.outlines is not None
+        if self.outlines.n_groups < self.outlines.config.min_groups_along:
+            return None, ""
+        joints = np.array([self._motions[k].point_base for k in live])
+        if linear is not None:
+            T = linear.T_camera_base
+        elif len(with_axis) >= 2:
+            try:
+                R, t0, u = pose_family([self._correspondence(k) for k in with_axis])
+            except ArcCalibError:
+                return None, ""
+            offsets = family_offsets(R, t0, u, joints, np.array([np.sqrt(np.prod(cfg.family_distances))]))
+            if offsets.size == 0:
+                return None, ""
+            T = transform_from_rt(R, t0 + offsets[0] * u)
+        else:
+            return None, ""
+        prefix = "the outlines could not fix what the tracks leave free"
+        T, score = screen_start(self._screen_track_set(live), T, cfg.refinement, cfg.refinement.max_nfev, FAMILY_CAP_PX)
+        if not np.isfinite(score):
+            return None, f"{prefix}: the tracks cannot be triangulated from the start"
+        information, _ = track_information(tracks, T)
+        depth = float(np.mean(np.linalg.norm(joints @ T[:3, :3].T + T[:3, 3], axis=1)))
+        _, V = np.linalg.eigh(information / np.outer(*2 * [np.repeat([1.0, depth], 3)]))
+        if np.linalg.norm(V[3:, 0]) < 0.9:
+            return None, f"{prefix}: the tracks' weakest direction is a rotation"
+        u = V[3:, 0] / np.linalg.norm(V[3:, 0])
+        try:
+            held = refine(tracks, T, cfg.refinement, free_direction=np.concatenate([np.zeros(3), u]))
+            offsets = family_offsets(held.T_camera_base[:3, :3], held.T_camera_base[:3, 3], u, joints,
+                                     np.geomspace(*cfg.family_distances, OUTLINE_SEARCH_SAMPLES))
+            if offsets.size < 2:
+                return None, f"{prefix}: no pose along it puts the robot in front of the camera"
+            start, _ = self.outlines.search_along(held.T_camera_base, u, offsets)
+            fused = self.outlines.fuse(held.T_camera_base, held.covariance, start, free_direction=u)
+        except (ArcCalibError, np.linalg.LinAlgError) as exc:
+            return None, f"{prefix}: {type(exc).__name__}: {exc}"
+        # From three to five motions the tracks' covariance is too narrow in the directions they fix best (their
+        # motion clusters are too few; measured: chi-square of the truth 11-44 over 5 dof): the outlines' own
+        # covariance bounds the rescued pose's from below (then 0.8-5.9 over 6 dof where the fusion's was 1-40).
+        fused = replace(fused, covariance=conservative_covariance(fused.covariance, fused.outline_covariance))
+        std = np.sqrt(np.diag(fused.covariance))
+        if not (np.all(std[:3] <= cfg.max_std_rotation) and np.all(std[3:] <= cfg.max_std_translation)):
+            return None, f"{prefix}: together they leave a 1-sigma of {np.round(std, 4).tolist()} (rad, m)"
+        return fused, ""
 
     def _store_batch(self, live: list[int], tracks: TrackSet, refined: RefinementResult) -> None:
         """Keep a bundle adjustment over every motion ``live``: its points, inlier counts and summaries' order."""

@@ -559,7 +559,8 @@ def _with_unweighted(problem: _Problem, x: FloatArray, fun: FloatArray, raw: Flo
 
 
 def weighted_covariance_bound(cov: FloatArray, summaries: Sequence[MotionSummary], prior_row: FloatArray | None,
-                              T0: FloatArray | None, s0: float | None, config: RefinementConfig) -> FloatArray:
+                              T0: FloatArray | None, s0: float | None, config: RefinementConfig,
+                              gauge: FloatArray | None = None) -> FloatArray:
     """The covariance (n, n) of a weighted estimate, at least its unweighted twin's (``track_weights``).
 
     ``cov`` is the weighted adjustment's (``summaries_covariance`` of ``summaries``, about (T0, s0), or about
@@ -567,7 +568,8 @@ def weighted_covariance_bound(cov: FloatArray, summaries: Sequence[MotionSummary
     ``unweighted``) have their optimum a Gauss-Newton step d (n,) away; the bound is their covariance there
     (``summaries_covariance``, the same settings), plus d d^T, the two estimates' difference, when they differ
     beyond their noise (``weights_disagree``): where the weights and the plain fit disagree, that much is
-    unknown. Returns ``cov`` when the summaries carry no unweighted twins (weights off).
+    unknown. Returns ``cov`` when the summaries carry no unweighted twins (weights off). ``gauge``: as
+    ``summaries_covariance``'s.
     """
     if not summaries or all(m.unweighted is None for m in summaries):
         return cov
@@ -579,11 +581,13 @@ def weighted_covariance_bound(cov: FloatArray, summaries: Sequence[MotionSummary
     if prior_row is not None:  # the time offset's prior residual prior_row @ (0, .., s)
         S = S + np.outer(prior_row, prior_row)
         G = G + prior_row * (prior_row[-1] * (s_a or 0.0))
+    if gauge is not None:
+        S = S + gauge
     d = -np.linalg.lstsq(S, G, rcond=None)[0]
     T_u = perturb(T_a, d[:6])
     s_u = None if s_a is None else s_a + float(d[6])
     bound, _, _ = summaries_covariance(plain, prior_row, T_u, s_u, config.motion_clusters, config.motion_jackknife,
-                                       config.motion_dispersion)
+                                       config.motion_dispersion, gauge)
     if weights_disagree(d, bound, cov):
         bound = bound + np.outer(d, d)
     return conservative_covariance(cov, bound)
@@ -884,7 +888,8 @@ def summaries_prior(summaries: Sequence[MotionSummary], T0: FloatArray, s0: floa
 def summaries_covariance(summaries: Sequence[MotionSummary], prior_row: FloatArray | None = None,
                          T0: FloatArray | None = None, s0: float | None = None,
                          motion_clusters: bool = True, motion_jackknife: bool = True,
-                         motion_dispersion: bool = True) -> tuple[FloatArray, float, FloatArray]:
+                         motion_dispersion: bool = True, gauge: FloatArray | None = None
+                         ) -> tuple[FloatArray, float, FloatArray]:
     """The pose covariance (n, n) of all ``summaries``, the residual sigma (px) and the covariance before the jackknife.
 
     The model's covariance, enlarged where the track-clustered sandwich is larger and, with
@@ -909,10 +914,14 @@ def summaries_covariance(summaries: Sequence[MotionSummary], prior_row: FloatArr
             their scores are than independent pixel noise makes them; the quasi-likelihood scale). The
             jackknife of M motions has rank M - 1 at most and, with few motions, misses whole directions
             this one covers.
+        gauge: (n, n) px^2 per unit^2, a weak prior's information on a direction the tracks leave free (``refine``'s
+            ``free_direction``), added to the model's.
     """
     S = sum(m.information for m in summaries)
     if prior_row is not None:
         S = S + np.outer(prior_row, prior_row)
+    if gauge is not None:
+        S = S + gauge
     meat = sum(m.meat for m in summaries)
     m_res = sum(m.n_residuals for m in summaries)
     T = sum(m.n_tracks for m in summaries)
@@ -1078,6 +1087,30 @@ def pose_information(tracks: TrackSet, T_camera_base: FloatArray) -> FloatArray:
     return 0.5 * (S + S.T)
 
 
+def track_information(tracks: TrackSet, T_camera_base: FloatArray) -> tuple[FloatArray, float]:
+    """The tracks' Fisher information about the pose at T_camera_base, and their noise, without an adjustment.
+
+    For tracks whose motions may leave a direction of the pose free (where ``refine``'s covariance does not
+    exist): ``pose_information`` divided by sigma^2, sigma the robust scale (``robust_sigma``) of the residuals
+    of the tracks' points triangulated from T_camera_base (``triangulate_tracks``), which should be where a pass
+    of the adjustment ended (``screen_start``).
+
+    Returns:
+        (6, 6) float64, per (rad or m)^2, symmetric positive semi-definite (zero without a triangulated track),
+        and sigma, px (NaN without one).
+    """
+    points, ok = triangulate_tracks(tracks, T_camera_base)
+    if not ok.any():
+        return np.zeros((6, 6)), float("nan")
+    sub = _subset(tracks, ok)
+    q = points[ok] @ T_camera_base[:3, :3].T + T_camera_base[:3, 3]
+    problem = _Problem(sub, T_camera_base)
+    x = np.concatenate([np.zeros(6), q.ravel()])
+    sigma = max(robust_sigma(problem.residuals(x)[:2 * sub.uv.shape[0]].reshape(-1, 2)), 1e-6)
+    S = _schur_information(problem, x)
+    return 0.5 * (S + S.T) / sigma**2, sigma
+
+
 def track_observability(tracks: TrackSet, T_camera_base: FloatArray,
                         keep: NDArray[np.bool_] | None = None) -> tuple[float, FloatArray]:
     """How well the tracks fix the pose near T_camera_base, whatever their noise.
@@ -1108,8 +1141,14 @@ def track_observability(tracks: TrackSet, T_camera_base: FloatArray,
     return float(np.sqrt(max(lam[0], 0.0) / lam[-1])) if lam[-1] > 0 else 0.0, V[:, 0]
 
 
+#: ``refine``'s weak prior along a free direction: one pixel of cost per this many units (rad or m) of the direction,
+#: i.e. a 1-sigma of about sigma_px x 10 m along it: the tracks' information on any direction they fix is 1e6 times or
+#: more (px^2 per m^2), and an outline fit that follows adds ~1e5 per m^2 or more, so the prior changes neither.
+GAUGE_PX_PER_UNIT = 0.1
+
+
 def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None = None,
-           points_init: FloatArray | None = None) -> RefinementResult:
+           points_init: FloatArray | None = None, free_direction: FloatArray | None = None) -> RefinementResult:
     """Bundle-adjust T_camera_base and the track points, starting from ``T_init``.
 
     With the time offset estimated (``RefinementConfig.estimate_time_offset``) it starts at 0 and
@@ -1123,15 +1162,29 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
         config: settings; defaults to ``RefinementConfig()``.
         points_init: (T, 3) float64, m: starting points; triangulated from ``T_init`` if None. Given (a warm
             start), the robust pass also ends when the pose stands still (``robust_pose_tol``).
+        free_direction: (6,) a direction of (omega, tau) that the tracks may leave free (the depth of joints whose
+            axes meet in one point): a weak prior (``GAUGE_PX_PER_UNIT``) holds the pose along it where each pass
+            starts, so that the adjustment and its covariance exist; the covariance says the rest honestly and,
+            along it, that it is free (metres). Schur backend only.
 
     Raises:
         InsufficientMotionsError: fewer than two tracks survive triangulation or outlier removal.
-        InvalidInputError: the time offset is to be estimated but a track carries no joint velocity.
+        InvalidInputError: the time offset is to be estimated but a track carries no joint velocity; a free
+            direction with the scipy backend, or not a finite non-zero (6,) array.
         TimeOffsetError: the estimated time offset is beyond ``time_offset_bound_s``.
     """
     config = config or RefinementConfig()
     if not np.all(np.isfinite(T_init)):
         raise InvalidInputError("T_init contains NaN or infinite values")
+    gauge = None
+    if free_direction is not None:
+        w = np.asarray(free_direction, dtype=np.float64).reshape(-1)
+        if w.shape != (6,) or not np.all(np.isfinite(w)) or np.linalg.norm(w) == 0:
+            raise InvalidInputError("the free direction must be a finite non-zero (6,) array")
+        if config.backend != "schur":
+            raise InvalidInputError("a free direction needs backend='schur' (scipy's takes no pose prior)")
+        w = w / np.linalg.norm(w)
+        gauge = GAUGE_PX_PER_UNIT**2 * np.outer(w, w)
     tracks = replace(tracks, free_rates=np.ones(tracks.n_tracks, bool) if config.free_rates == "all" else None)
     estimate = config.estimate_time_offset
     if estimate is None:
@@ -1140,12 +1193,15 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
         raise InvalidInputError("estimate_time_offset is on but not every track carries the joint's velocity "
                                 "(KeypointTrack.velocity)")
     bound = config.time_offset_bound_s
+    if gauge is not None and estimate:
+        gauge = np.pad(gauge, (0, 1))
+    prior = None if gauge is None else PosePrior(gauge, np.zeros(len(gauge)))
     points, keep = start_points(tracks, T_init, points_init)
     sub = _subset(tracks, keep)
     T, pts, problem, x, sol = _solve(sub, T_init, points[keep], "cauchy", config.cauchy_scale_px,
                                      config.max_nfev, ftol=config.robust_ftol,
                                      time_offset=(0.0, 1.0 / bound) if estimate else None, backend=config.backend,
-                                     pose_tol=config.robust_pose_tol if points_init is not None else None)
+                                     pose_tol=config.robust_pose_tol if points_init is not None else None, prior=prior)
     res = sol.fun[:2 * sub.uv.shape[0]].reshape(-1, 2)
     sigma = robust_sigma(res)
     good = agreeing_tracks(sub, res, sigma, config) & split_agreeing_tracks(
@@ -1158,15 +1214,15 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
     scale = _track_scale(sub, res, good, sigma, config) if config.track_weights else None
     T, pts2, problem, x, sol = _solve(sub2, T, pts[good], "linear", 1.0, config.max_nfev, 1e-8,
                                       time_offset=(float(x[6]), max(sigma, 1e-6) / bound) if estimate else None,
-                                      backend=config.backend, scale=scale)
+                                      backend=config.backend, scale=scale, prior=prior)
     fun = sol.fun[:2 * sub2.uv.shape[0]]  # the observations' residuals (the prior's is last, with s)
     raw = fun if scale is None else (fun.reshape(-1, 2) / scale[:, None]).ravel()  # px, unweighted
     summaries = _with_unweighted(problem, x, fun, raw, scale)
     prior_row = problem.prior_row()
     cov, sigma_fit, sandwich = summaries_covariance(summaries, prior_row, motion_clusters=config.motion_clusters,
                                                      motion_jackknife=config.motion_jackknife,
-                                                     motion_dispersion=config.motion_dispersion)
-    cov = weighted_covariance_bound(cov, summaries, prior_row, None, None, config)
+                                                     motion_dispersion=config.motion_dispersion, gauge=gauge)
+    cov = weighted_covariance_bound(cov, summaries, prior_row, None, None, config, gauge)
     cov, offset, offset_std, correlation = _split_time_offset(cov, x, bound) if estimate else (cov, None, None, None)
     inliers, all_points = kept_points(tracks.n_tracks, keep, good, pts2)
     return RefinementResult(T, cov, all_points, inliers, float(np.sqrt(np.mean(raw**2))),

@@ -118,3 +118,61 @@ def test_too_few_motions_or_bad_priors_are_refused(edges):
         _adjustment(edges).fuse(perturb(T_TRUE, np.array([0, 0, 0, 2.0, 0, 0])), VAGUE)
     with pytest.raises(InvalidInputError, match="finite"):
         OutlineImage(edges[0], np.array([np.nan]), 0)
+
+
+def _free_along(u: np.ndarray, strength: float = 1e8) -> np.ndarray:
+    """(6, 6) covariance: 1/sqrt(strength) in every direction but the translation along u (10 m there: free)."""
+    w = np.concatenate([np.zeros(3), u])
+    basis, _ = np.linalg.qr(np.column_stack([w, np.eye(6)]))
+    return basis @ np.diag([1e2] + [1.0 / strength] * 5) @ basis.T
+
+
+#: The ray from the camera through the base origin: the direction the tracks of joints meeting there leave free.
+RAY = T_TRUE[:3, 3] / np.linalg.norm(T_TRUE[:3, 3])
+
+
+def _shifted(T: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    out = T.copy()
+    out[:3, 3] += shift
+    return out
+
+
+def test_the_outlines_fix_the_depth_the_tracks_leave_free(edges):
+    """The tracks' pose 30 cm too far along the ray, free there: the search finds the depth, the fusion refines it."""
+    prior = _shifted(T_TRUE, 0.3 * RAY)
+    adjustment = _adjustment(edges, OutlineFusionConfig())  # the default reach: the free direction is left out
+    start, step = adjustment.search_along(prior, RAY, np.linspace(-0.6, 0.6, 40))
+    assert abs((start[:3, 3] - T_TRUE[:3, 3]) @ RAY) < step
+    fusion = adjustment.fuse(prior, _free_along(RAY), start, free_direction=RAY)
+    err = pose_difference(fusion.T_camera_base, T_TRUE)
+    assert np.linalg.norm(err[:3]) < ROT_TOL
+    assert np.linalg.norm(err[3:]) < TRANS_TOL
+    assert _chi2(fusion.T_camera_base, fusion.covariance) < CHI2_999
+    # the free direction's 1-sigma is the outlines' (millimetres: three small spheres' sizes; measured 2.7 mm)
+    w = np.concatenate([np.zeros(3), RAY])
+    assert np.sqrt(w @ fusion.covariance @ w) < 5e-3
+    with pytest.raises(InsufficientMotionsError, match="too uncertain"):  # not without the direction searched
+        _adjustment(edges, OutlineFusionConfig()).fuse(prior, _free_along(RAY), start)
+
+
+def test_tracks_sure_of_their_depth_keep_it(edges):
+    """Sure of a depth 2 mm off (1-sigma 10 um), the tracks hold it: the search only says where to start."""
+    prior = _shifted(T_TRUE, 2e-3 * RAY)
+    adjustment = _adjustment(edges, replace(UNLIMITED, max_disagreement_chi2=1e9))
+    start, _ = adjustment.search_along(prior, RAY, np.linspace(-0.6, 0.6, 40))
+    fusion = adjustment.fuse(prior, np.eye(6) * 1e-10, start, free_direction=RAY)
+    assert np.linalg.norm(pose_difference(fusion.T_camera_base, prior)[3:]) < 1e-4
+
+
+def test_a_free_line_that_misses_the_robot_or_bad_input_is_refused(edges):
+    side = np.array([1.0, 0.0, 0.0])
+    with pytest.raises(InsufficientMotionsError, match="free direction"):  # every pose puts the spheres off-image
+        _adjustment(edges).search_along(T_TRUE, side, np.linspace(2.0, 3.0, 10))
+    with pytest.raises(InsufficientMotionsError, match="from 2 motion"):
+        _adjustment(edges, groups=[0, 0, 0, 1, 1, 1]).fuse(T_TRUE, _free_along(RAY), free_direction=RAY)
+    with pytest.raises(InvalidInputError, match="direction"):
+        _adjustment(edges).search_along(T_TRUE, np.zeros(3), np.linspace(-0.1, 0.1, 5))
+    with pytest.raises(InvalidInputError, match="direction"):
+        _adjustment(edges).fuse(T_TRUE, _free_along(RAY), free_direction=np.array([np.nan, 0, 1]))
+    with pytest.raises(InvalidInputError, match="two finite offsets"):
+        _adjustment(edges).search_along(T_TRUE, RAY, np.array([0.1]))

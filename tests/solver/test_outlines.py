@@ -16,6 +16,7 @@ from solver.outlines import (
     image_edges,
     outline_residuals,
     outline_residuals_and_jacobian,
+    pair_contour_points,
 )
 from tests.solver.spheres import CAMERA, T_TRUE, K, project_px, render_spheres, sphere_contour, sphere_depth
 
@@ -76,6 +77,15 @@ def test_outlines_the_images_do_not_show_raise(edges):
     far = perturb(T_TRUE, np.array([0, 0, 0, 2.0, 0, 0]))  # every outline out of the image
     with pytest.raises(InsufficientMotionsError, match="contour points lie within"):
         fit_outline_pose(far, edges, _model, CAMERA)
+
+
+def test_an_image_without_edges_pairs_nothing(edges):
+    contour = _model(T_TRUE)[0]
+    blank = ImageEdges(np.zeros((0, 2)), np.zeros((0, 2)))
+    pairs = pair_contour_points(T_TRUE, [contour, contour], [blank, edges[0]], CAMERA, OutlineConfig())
+    alone = pair_contour_points(T_TRUE, [contour], [edges[0]], CAMERA, OutlineConfig())
+    assert len(pairs.points_base) == len(alone.points_base) > 0
+    assert len(pair_contour_points(T_TRUE, [contour], [blank], CAMERA, OutlineConfig()).points_base) == 0
 
 
 def test_bad_inputs_are_refused(edges):

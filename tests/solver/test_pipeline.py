@@ -666,3 +666,30 @@ def test_too_few_outline_motions_leave_the_tracks_pose():
     alone, joint, _ = _outline_episode(5, 6, config)
     assert joint.state.outline is None and "from 6 motion(s)" in joint.state.outline_note
     assert np.array_equal(joint.state.T_camera_base, alone.state.T_camera_base)
+
+
+def test_the_outlines_fix_the_depth_the_shoulder_joints_leave_free():
+    """Joints 1-3 alone turn the arm about one point: the tracks fit every depth, the outlines (spheres) fix it."""
+    rng = np.random.default_rng(3)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.3, outlier_fraction=0.1, tracks_per_motion=30), rng)
+    alone = Calibrator(K, PANDA.axis_and_point)
+    joint = Calibrator(K, PANDA.axis_and_point, contours=_sphere_contours)
+    for _ in range(4):
+        motion = scene.random_motion(rng, joints=(0, 1, 2))
+        obs = motion.observation
+        images = []
+        for delta in (0.0, motion.delta):
+            q = obs.q_start.copy()
+            q[obs.joint] += delta
+            images.append(_sphere_edges(T, q, rng))
+        alone.add_motion(obs, outlines=images)
+        joint.add_motion(obs, outlines=images)
+    assert alone.state.T_camera_base is None  # the tracks alone: no pose
+    s = joint.state
+    assert (s.stage, s.start, s.converged) == ("refined", "outlines", False), s.outline_note
+    assert s.outline is not None and s.outline.n_groups == 4
+    rot, trans = pose_errors(s.T_camera_base, T)
+    assert rot < NOISY_ROT and trans < NOISY_TRANS
+    xi = pose_difference(s.T_camera_base, T)
+    assert xi @ np.linalg.solve(s.covariance, xi) < CHI2_6_999
