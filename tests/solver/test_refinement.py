@@ -34,6 +34,7 @@ from solver.refinement import (
     reprojection_residuals,
     screen_start,
     split_half_residuals,
+    track_information,
     track_observability,
     triangulate_tracks,
 )
@@ -446,6 +447,36 @@ def test_track_observability_finds_the_free_depth_of_axes_through_one_point():
     keep = np.zeros(16, dtype=bool)
     keep[:4] = True  # one motion's tracks alone: its own axis's depth is free
     assert track_observability(build_track_set(free.motions, FOCAL), free.T_true, keep)[0] < 1e-6
+
+
+def test_refine_held_along_a_free_direction_fixes_the_rest():
+    """Axes through one point leave the depth free: held there, the adjustment fixes the rest and says so."""
+    pivot = np.array([0.1, -0.05, 0.2])
+    scene = _make_scene(17, n_motions=4, n_tracks=6, n_frames=30, noise_px=NOISE_PX, pivot=pivot)
+    tracks = build_track_set(scene.motions, FOCAL)
+    ray = scene.T_true[:3, :3] @ pivot + scene.T_true[:3, 3]
+    ray /= np.linalg.norm(ray)
+    moved = scene.T_true.copy()
+    moved[:3, 3] += 0.2 * ray  # 20 cm along the free line: the tracks fit it as well
+    start = perturb(moved, np.array([0.002, -0.001, 0.001, 0.001, 0.002, -0.001]))
+    with pytest.raises(np.linalg.LinAlgError):  # not held, its covariance does not exist
+        refine(tracks, start)
+    information, sigma = track_information(tracks, moved)
+    assert 0.2 < sigma < 1.0  # the triangulated points' residuals: about the 0.5 px noise
+    w = np.concatenate([np.zeros(3), ray])
+    assert w @ information @ w < 1e-6 * np.trace(information)
+    held = refine(tracks, start, free_direction=w)
+    err = pose_difference(held.T_camera_base, moved)
+    assert abs(err[3:] @ ray) < 0.01  # held where it started along the line (measured: 0.8 mm from it)
+    assert np.sqrt(w @ held.covariance @ w) > 0.5  # and says it is free there (metres)
+    Q = np.eye(6) - np.outer(w, w)  # elsewhere the honest covariance holds the error
+    e = Q @ err
+    assert e @ np.linalg.pinv(Q @ held.covariance @ Q, rcond=1e-10) @ e < CHI2_6_999
+    assert np.linalg.norm(e[:3]) < 5e-3 and np.linalg.norm(e[3:]) < 5e-3
+    with pytest.raises(InvalidInputError, match="schur"):
+        refine(tracks, start, RefinementConfig(backend="scipy"), free_direction=w)
+    with pytest.raises(InvalidInputError, match="free direction"):
+        refine(tracks, start, free_direction=np.zeros(6))
 
 
 def test_refine_rejects_non_finite_start():
