@@ -254,7 +254,8 @@ def main(argv: list[str] | None = None) -> int:
     modes = {look: ["tracked"] + ([] if args.no_oracle or i > 0 else ["oracle"]) for i, look in enumerate(looks)}
     specs = {(robot, size, look, mode, pose, seed): EpisodeSpec(
                  "random", pose, seed, args.motions, size[0], size[1], realism=look[0], appearance=look[1],
-                 oracle=mode == "oracle", robot=robot, outline_frames=args.outline_frames if mode == "tracked" else 0)
+                 oracle=mode == "oracle", robot=robot, outline_frames=args.outline_frames if mode == "tracked" else 0,
+                 background=args.background if look == looks[0] else "floor")  # the clean look beside: today's
              for robot in robots for size in sizes for look in looks
              for pose in range(args.poses) for seed in range(args.seeds) for mode in modes[look]}
     print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, "

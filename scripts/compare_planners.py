@@ -91,7 +91,8 @@ def main(argv: list[str] | None = None) -> int:
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
     specs = {(name, pose, seed): EpisodeSpec(name, pose, seed, args.motions, args.width, args.height,
-                                             realism=args.realism, appearance=args.appearance)
+                                             realism=args.realism, appearance=args.appearance,
+                                             background=args.background)
              for pose in range(args.poses) for seed in range(args.seeds) for name in PLANNERS}
     print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, {args.width}x{args.height}")
     print(f"{'planner':>8} {'pose':>4} {'seed':>4} {'@3':>17} {'@6':>17} {'@10':>17} {'final':>17} "

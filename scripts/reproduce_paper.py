@@ -246,7 +246,8 @@ def main(argv: list[str] | None = None) -> int:
           f"methods {', '.join(methods)}, IoU at {args.iou_configs} configurations", flush=True)
     checkpoints = [k for k in CHECKPOINTS if k <= args.motions]
     specs = {(m, pose, seed): EpisodeSpec(m, pose, seed, args.motions, args.width, args.height,
-                                          realism=args.realism, appearance=args.appearance)
+                                          realism=args.realism, appearance=args.appearance,
+                                          background=args.background)
              for pose in range(args.poses) for seed in range(args.seeds) for m in methods}
 
     def show(r: dict, from_store: bool) -> None:

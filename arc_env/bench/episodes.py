@@ -61,6 +61,7 @@ import numpy as np
 from arc_env.robot.exports import write_files_atomic
 from arc_env.robot.library import DEFAULT_ROBOT, ROBOT_NAMES, library_robot
 from arc_env.robot.session import UsableCriteria, state_unusable_reason
+from arc_env.sim.background import BACKGROUNDS
 from arc_env.sim.imaging import APPEARANCES, REALISMS, realism_settings
 from solver.arrays import FloatArray
 from solver.errors import ArcCalibError, InvalidInputError
@@ -96,6 +97,8 @@ class EpisodeSpec:
             the default Panda, so stores written before this field existed stay valid.
         outline_frames: images per motion for the outline stage (``EnvConfig.outline_frames``); 0 (off) keeps
             ``key`` as it was.
+        background: what stands behind the robot (``SceneConfig.background``: "floor" or "lab", the lab drawn with
+            the episode's seed); "floor" keeps ``key`` as it was.
     """
 
     method: str
@@ -109,6 +112,7 @@ class EpisodeSpec:
     appearance: str | None = None
     robot: str = DEFAULT_ROBOT
     outline_frames: int = 0
+    background: str = "floor"
 
     def __post_init__(self) -> None:
         """Check the fields."""
@@ -117,6 +121,8 @@ class EpisodeSpec:
             raise InvalidInputError(f"unknown method {self.method!r}; valid: {', '.join(METHODS)}")
         if self.oracle and self.method == "marker":
             raise InvalidInputError("the marker baseline has no oracle mode")
+        if self.background not in BACKGROUNDS:
+            raise InvalidInputError(f"unknown background {self.background!r}; valid: {', '.join(BACKGROUNDS)}")
         if self.robot not in ROBOT_NAMES:
             raise InvalidInputError(f"unknown robot {self.robot!r}; valid: {', '.join(ROBOT_NAMES)}")
         if self.method == "marker" and self.robot != DEFAULT_ROBOT:
@@ -133,8 +139,9 @@ class EpisodeSpec:
         default_look = (self.realism, self.appearance) == ("clean", None)
         look = "" if default_look else f"_{self.realism}-{self.appearance or 'default'}"
         outlines = f"_o{self.outline_frames}" if self.outline_frames else ""
-        return (f"{self.method}{mode}{robot}{look}_{self.width}x{self.height}_m{self.motions}{outlines}_p{self.pose}"
-                f"_s{self.seed}")
+        background = "" if self.background == "floor" else f"_{self.background}"
+        return (f"{self.method}{mode}{robot}{look}{background}_{self.width}x{self.height}_m{self.motions}{outlines}"
+                f"_p{self.pose}_s{self.seed}")
 
     @property
     def rng_seed(self) -> int:
@@ -233,7 +240,8 @@ def make_env(spec: EpisodeSpec, board: bool = False):  # noqa: ANN202  (ArcCalib
 
     config = EnvConfig(scene=SceneConfig(robot=library_robot(spec.robot), width=spec.width, height=spec.height,
                                          marker_board=MarkerBoard() if board else None,
-                                         appearance_seed=spec.rng_seed,
+                                         appearance_seed=spec.rng_seed, background=spec.background,
+                                         background_seed=spec.rng_seed,
                                          **realism_settings(spec.realism, spec.appearance)),
                        max_motions=spec.motions, oracle_keypoints=spec.oracle, terminate_on_convergence=False,
                        outline_frames=spec.outline_frames,
@@ -382,7 +390,9 @@ class EpisodeStore:
             return None
         if not isinstance(record, dict) or not isinstance(record.get("spec"), dict):
             return None
-        defaults = {"realism": "clean", "appearance": None, "robot": DEFAULT_ROBOT}  # stored before these fields
+        # stored before these fields existed
+        defaults = {"realism": "clean", "appearance": None, "robot": DEFAULT_ROBOT, "outline_frames": 0,
+                    "background": "floor"}
         return record if {**defaults, **record["spec"]} == asdict(spec) else None
 
     def put(self, record: dict[str, Any]) -> None:
@@ -538,6 +548,9 @@ def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
                         help="camera and robot: clean renders (default) or realistic (noise, blur, H.264, shadows)")
     parser.add_argument("--appearance", choices=APPEARANCES,
                         help="the robot's surface (default: painted when clean, realistic when realistic)")
+    parser.add_argument("--background", choices=BACKGROUNDS, default="floor",
+                        help="what stands behind the robot: the floor alone (default) or a lab's cabinets, shelves, "
+                             "posters and boxes (arc_env.sim.background)")
     parser.add_argument("--workers", type=int, default=1,
                         help="episodes run in parallel processes (default 1); with --ray, the local cluster's CPUs "
                              "(default: all)")

@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 
 from arc_env.robot.model import RobotModel, RobotSource, attach_robot, compile_spec, robot_spec
 from arc_env.robot.rendering import create_renderer
+from arc_env.sim.background import BACKGROUNDS, add_clutter, clutter_bodies, place_clutter, plan_clutter
 from arc_env.sim.camera import fovy_from_intrinsics, mujoco_camera_from_optical
 from arc_env.sim.imaging import APPEARANCES, CameraEffects
 from arc_env.sim.marker_board import MarkerBoard, add_marker_board, restore_board_material
@@ -102,6 +103,9 @@ class SceneConfig:
         camera_mount: add a camera housing and tripod pole as collision geometry.
         marker_board: a ChArUco board fixed to the robot (the marker baseline's scene,
             ``arc_env.marker_board``); None (default) for the markerless scene.
+        background: what stands behind the robot: "floor" (the floor alone, the default) or "lab" (cabinets,
+            shelves, posters and boxes behind the robot as the camera sees it: ``arc_env.sim.background``).
+        background_seed: which lab, under "lab".
     """
 
     robot: RobotSource = field(default_factory=RobotSource)
@@ -120,6 +124,8 @@ class SceneConfig:
     camera_mount: bool = True
     marker_board: MarkerBoard | None = None
     effects: CameraEffects = field(default_factory=CameraEffects)
+    background: str = "floor"
+    background_seed: int = 0
 
     def __post_init__(self) -> None:
         if self.width < 16 or self.height < 16:
@@ -134,6 +140,8 @@ class SceneConfig:
             raise InvalidInputError("speckle_density must be in (0, 1)")
         if self.appearance not in APPEARANCES:
             raise InvalidInputError(f"appearance must be one of {APPEARANCES}, got {self.appearance!r}")
+        if self.background not in BACKGROUNDS:
+            raise InvalidInputError(f"background must be one of {BACKGROUNDS}, got {self.background!r}")
 
     @property
     def intrinsics(self) -> CameraIntrinsics:
@@ -215,6 +223,8 @@ class Scene:
         attach_robot(spec, robot, source)
         if self.config.marker_board is not None:
             add_marker_board(spec, self.config.marker_board)
+        self._clutter = plan_clutter(self.config.background_seed) if self.config.background == "lab" else ()
+        add_clutter(spec, self._clutter)
         self.model = compile_spec(spec, source)
         self.marks: Marks | None = None
         if self.config.appearance == "realistic":  # placed on the compiled robot, then compiled in
@@ -231,6 +241,7 @@ class Scene:
             restore_board_material(m)  # the speckle paint is for the robot, not the board
         self.camera_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, CAMERA_NAME)
         self.mount_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, MOUNT_BODY)
+        self._clutter_bodies = clutter_bodies(m, len(self._clutter))
         self.T_camera_base = np.eye(4)
         self._renderers: dict[int, mujoco.Renderer] = {}  # by downscale factor
         self._scene_option = mujoco.MjvOption()
@@ -256,6 +267,10 @@ class Scene:
     def set_camera(self, T_camera_base: FloatArray) -> None:
         """Place the camera (and its mount) so that ``p_camera = T_camera_base @ p_base``."""
         T_camera_base = check_transform(T_camera_base, "T_camera_base")
+        if self._clutter:  # behind the robot as this camera sees it
+            T_world_camera = self.robot.T_world_base @ np.linalg.inv(T_camera_base)
+            place_clutter(self.model, self._clutter_bodies, self._clutter, self.robot.T_world_base[:2, 3],
+                          T_world_camera[:2, 3])
         self._place_mount(T_camera_base)
         self.T_camera_base = T_camera_base.copy()
 
