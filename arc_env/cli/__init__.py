@@ -22,10 +22,11 @@ import sys
 
 from solver.errors import ArcCalibError, InvalidInputError
 
-#: The realism presets and robot appearances of the simulator (``arc_env.sim.imaging``; kept here so that
-#: ``--help`` does not import the simulator).
+#: The realism presets, robot appearances and backgrounds of the simulator (``arc_env.sim.imaging``,
+#: ``arc_env.sim.background``; kept here so that ``--help`` does not import the simulator).
 REALISMS = ("clean", "realistic")
 APPEARANCES = ("painted", "as_shipped", "realistic")
+BACKGROUNDS = ("floor", "lab")
 
 
 def _add_look_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,6 +37,9 @@ def _add_look_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the robot's surface: painted (uniform speckle; the clean default), as_shipped (the "
                              "model's own materials), realistic (plus sparse screws, seams, labels and cables; "
                              "the realistic default)")
+    parser.add_argument("--background", choices=BACKGROUNDS, default="floor",
+                        help="what stands behind the robot: the floor alone (default) or a lab's cabinets, shelves, "
+                             "posters and boxes, drawn from --seed")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -43,8 +43,8 @@ def run_demo(args: argparse.Namespace) -> int:
     """Run the episode described by the parsed ``arc-calib demo`` arguments; returns the exit code."""
     check_rerun_save(args, force=True)  # like --overlay, demo replaces its outputs
     robot = robot_from_arguments(args.robot, args.base_body)
-    scene = SceneConfig(robot=robot, width=args.width, height=args.height,
-                        **realism_settings(args.realism, args.appearance))
+    scene = SceneConfig(robot=robot, width=args.width, height=args.height, background=args.background,
+                        background_seed=args.seed, **realism_settings(args.realism, args.appearance))
     config = EnvConfig(scene=scene, max_motions=args.motions, oracle_keypoints=args.oracle,
                        oracle_noise_px=args.noise, outline_frames=0 if args.oracle else args.outline_frames)
     env = ArcCalibEnv(config)

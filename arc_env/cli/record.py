@@ -27,7 +27,8 @@ def run_record(args: argparse.Namespace) -> int:
                               robot=robot, realism=args.realism, appearance=args.appearance,
                               joint_latency_s=args.joint_latency_ms / 1000.0, format=args.format,
                               image_encoding=args.image_encoding,
-                              trajectory=Path(args.trajectory) if args.trajectory else None, camera_pose=camera_pose)
+                              trajectory=Path(args.trajectory) if args.trajectory else None, camera_pose=camera_pose,
+                              background=args.background)
     started = time.perf_counter()
     steps, unit = (max(1, math.ceil(duration)), "s of trajectory") if args.trajectory else (settings.motions,
                                                                                            "motions recorded")

@@ -117,6 +117,7 @@ class RecordSettings:
         trajectory: a JointTrajectory YAML (``arc-calib plan``'s) to replay instead of planning motions
             (``record_trajectory``); ``motions`` is then ignored.
         camera_pose: (4, 4) float64 ``T_camera_base`` of the simulated camera; None samples one from ``seed``.
+        background: what stands behind the robot (``SceneConfig.background``; the lab drawn from ``seed``).
     """
 
     out: Path
@@ -137,6 +138,7 @@ class RecordSettings:
     joint_hz: float = 200.0
     trajectory: Path | None = None
     camera_pose: FloatArray | None = None
+    background: str = "floor"
 
     def __post_init__(self) -> None:
         if self.format not in FORMATS:
@@ -188,8 +190,8 @@ def record_episode(settings: RecordSettings, on_motion: Callable[[str], None] | 
                               width=s.width, height=s.height)
     distorter = Distorter(target) if target.dist.size and np.any(target.dist != 0) else None
     render_fx = distorter.pinhole.K[0, 0] if distorter else fx
-    scene = SceneConfig(robot=s.robot, width=s.width, height=s.height, fx=render_fx,
-                        **realism_settings(s.realism, s.appearance))
+    scene = SceneConfig(robot=s.robot, width=s.width, height=s.height, fx=render_fx, background=s.background,
+                        background_seed=s.seed, **realism_settings(s.realism, s.appearance))
     env = ArcCalibEnv(EnvConfig(scene=scene, max_motions=s.motions, oracle_keypoints=True,
                                 terminate_on_convergence=False, fps=s.fps))
     writer: RecordingWriter | None = None

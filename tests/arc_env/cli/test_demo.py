@@ -63,6 +63,7 @@ def test_demo_robot_without_base_body(capsys):
 
 def test_the_command_lines_look_choices_are_the_simulators():
     from arc_env import cli
-    from arc_env.sim import imaging
+    from arc_env.sim import background, imaging
 
     assert cli.REALISMS == imaging.REALISMS and cli.APPEARANCES == imaging.APPEARANCES
+    assert cli.BACKGROUNDS == background.BACKGROUNDS
