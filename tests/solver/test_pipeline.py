@@ -637,15 +637,21 @@ def _outline_episode(seed, n, config=None):
     joint = Calibrator(K, PANDA.axis_and_point, config, contours=_sphere_contours)
     for _ in range(n):
         motion = scene.random_motion(rng)
-        obs = motion.observation
-        images = []
-        for delta in (0.0, motion.delta):
-            q = obs.q_start.copy()
-            q[obs.joint] += delta
-            images.append(_sphere_edges(T, q, rng))
-        alone.add_motion(obs, outlines=images)  # no contour renderer: ignored
-        joint.add_motion(obs, outlines=images)
+        images = _motion_images(T, motion, rng)
+        alone.add_motion(motion.observation, outlines=images)  # no contour renderer: ignored
+        joint.add_motion(motion.observation, outlines=images)
     return alone, joint, T
+
+
+def _motion_images(T_true, motion, rng) -> list[OutlineImage]:
+    """A synthetic motion's two outline images: at its start and its end."""
+    obs = motion.observation
+    images = []
+    for delta in (0.0, motion.delta):
+        q = obs.q_start.copy()
+        q[obs.joint] += delta
+        images.append(_sphere_edges(T_true, q, rng))
+    return images
 
 
 def test_the_outlines_join_the_tracks_pose():
@@ -677,14 +683,9 @@ def test_the_outlines_fix_the_depth_the_shoulder_joints_leave_free():
     joint = Calibrator(K, PANDA.axis_and_point, contours=_sphere_contours)
     for _ in range(4):
         motion = scene.random_motion(rng, joints=(0, 1, 2))
-        obs = motion.observation
-        images = []
-        for delta in (0.0, motion.delta):
-            q = obs.q_start.copy()
-            q[obs.joint] += delta
-            images.append(_sphere_edges(T, q, rng))
-        alone.add_motion(obs, outlines=images)
-        joint.add_motion(obs, outlines=images)
+        images = _motion_images(T, motion, rng)
+        alone.add_motion(motion.observation, outlines=images)
+        joint.add_motion(motion.observation, outlines=images)
     assert alone.state.T_camera_base is None  # the tracks alone: no pose
     s = joint.state
     assert (s.stage, s.start, s.converged) == ("refined", "outlines", False), s.outline_note
