@@ -559,7 +559,7 @@ def result_dict(run: FinishedCalibration, edge: ParentChild, exports: Mapping[st
         "time_offset_std_s": s.time_offset_std_s,
         "outlines": None if run.calibrator.outlines is None else {
             "images": run.calibrator.outlines.n_images, "motions": run.calibrator.outlines.n_groups,
-            "used": s.outline is not None, "note": s.outline_note,
+            "used": s.outline is not None, "fixed_free_direction": s.start == "outlines", "note": s.outline_note,
             "pairs": None if s.outline is None else s.outline.n_pairs,
             "sigma_px": None if s.outline is None else s.outline.sigma_px},
         "stage": s.stage,

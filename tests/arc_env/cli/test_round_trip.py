@@ -280,6 +280,7 @@ def test_the_outline_stage_joins_a_recordings_calibration(recording, tmp_path, c
     outlines = result["outlines"]
     assert outlines["images"] == 27 and outlines["motions"] == 9  # the two pruned motions give none
     assert outlines["used"] and outlines["note"] == "" and outlines["pairs"] > 1000, outlines
+    assert outlines["fixed_free_direction"] is False  # the tracks fix every direction here
     assert "combined with the tracks" in text
     T_true = np.asarray(json.loads(ground_truth_path(recording).read_text())["T_camera_base"])
     xi = pose_difference(np.asarray(result["T_camera_base"]), T_true)
