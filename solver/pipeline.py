@@ -582,8 +582,7 @@ class Calibrator:
         t_refined = time.perf_counter()
         rescued, rescue_note = None, ""
         if refined is None and cfg.refine and self.outlines is not None and live:
-            rescued, rescue_note = self._outline_rescue(live, with_axis, linear,
-                                                        tracks if tracks is not None else self._track_set(live))
+            rescued, rescue_note = self._outline_rescue(live, with_axis, linear, tracks)
         self._update_reports(live, with_axis, linear, refined,
                              np.array([self._inlier_counts.get(k, 0) for k in live]) if refined is not None else None)
 
@@ -638,7 +637,7 @@ class Calibrator:
         return self.state
 
     def _outline_rescue(self, live: list[int], with_axis: list[int], linear: ConsensusResult | None,
-                        tracks: TrackSet) -> tuple[OutlineFusion | None, str]:
+                        tracks: TrackSet | None) -> tuple[OutlineFusion | None, str]:
         """The outlines' fix of the direction the tracks leave free, when the tracks give no refined pose.
 
         From the linear pose, or else a member of the motions' pose family, a short pass of the bundle adjustment
@@ -648,6 +647,9 @@ class Calibrator:
         where the motions' joints lie ``family_distances`` from the camera (``OutlineAdjustment.search_along``) and
         their adjustment from there with the tracks' pose and covariance as the prior (``fuse``). Measured on
         realistic Panda episodes whose first motions turned joints 1-3 only: ``docs/realistic-imaging.md``.
+
+        ``tracks``: every live motion's track set if this update built one, else None (built here only when the
+        rescue gets that far).
 
         Returns:
             (the fusion, "") when it fixes the pose within ``max_std_*``; (None, why not) when it was tried and
@@ -675,6 +677,7 @@ class Calibrator:
         T, score = screen_start(self._screen_track_set(live), T, cfg.refinement, cfg.refinement.max_nfev, FAMILY_CAP_PX)
         if not np.isfinite(score):
             return None, f"{prefix}: the tracks cannot be triangulated from the start"
+        tracks = tracks if tracks is not None else self._track_set(live)
         information, _ = track_information(tracks, T)
         depth = float(np.mean(np.linalg.norm(joints @ T[:3, :3].T + T[:3, 3], axis=1)))
         _, V = np.linalg.eigh(information / np.outer(*2 * [np.repeat([1.0, depth], 3)]))
