@@ -58,7 +58,6 @@ from solver.refinement import (
     refine_increment,
     reprojection_residuals,
     screen_start,
-    track_information,
     track_observability,
 )
 from solver.rigid_axis import RigidAxisConfig, geometry_from_rigid_fit, rigid_axis_of_motion
@@ -641,8 +640,9 @@ class Calibrator:
         """The outlines' fix of the direction the tracks leave free, when the tracks give no refined pose.
 
         From the linear pose, or else a member of the motions' pose family, a short pass of the bundle adjustment
-        (``screen_start``); there the tracks' weakest direction (``track_information``, the translation scaled by
-        the joints' depth), which must be a translation u; the bundle adjustment held along u by a weak prior
+        (``screen_start``); there the tracks' weakest direction (``track_observability``: the translation in units of
+        the points' depth, so the rotation and translation compare as the image sees them), which must be a
+        translation u; the bundle adjustment held along u by a weak prior
         (``refine``'s ``free_direction``: its covariance is the honest one elsewhere); the outlines' search along u
         where the motions' joints lie ``family_distances`` from the camera (``OutlineAdjustment.search_along``) and
         their adjustment from there with the tracks' pose and covariance as the prior (``fuse``). Measured on
@@ -678,12 +678,10 @@ class Calibrator:
         if not np.isfinite(score):
             return None, f"{prefix}: the tracks cannot be triangulated from the start"
         tracks = tracks if tracks is not None else self._track_set(live)
-        information, _ = track_information(tracks, T)
-        depth = float(np.mean(np.linalg.norm(joints @ T[:3, :3].T + T[:3, 3], axis=1)))
-        _, V = np.linalg.eigh(information / np.outer(*2 * [np.repeat([1.0, depth], 3)]))
-        if np.linalg.norm(V[3:, 0]) < 0.9:
+        _, weakest = track_observability(tracks, T)
+        if np.linalg.norm(weakest[3:]) < 0.9:
             return None, f"{prefix}: the tracks' weakest direction is a rotation"
-        u = V[3:, 0] / np.linalg.norm(V[3:, 0])
+        u = weakest[3:] / np.linalg.norm(weakest[3:])
         try:
             held = refine(tracks, T, cfg.refinement, free_direction=np.concatenate([np.zeros(3), u]))
             offsets = family_offsets(held.T_camera_base[:3, :3], held.T_camera_base[:3, 3], u, joints,

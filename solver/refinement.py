@@ -1087,30 +1087,6 @@ def pose_information(tracks: TrackSet, T_camera_base: FloatArray) -> FloatArray:
     return 0.5 * (S + S.T)
 
 
-def track_information(tracks: TrackSet, T_camera_base: FloatArray) -> tuple[FloatArray, float]:
-    """The tracks' Fisher information about the pose at T_camera_base, and their noise, without an adjustment.
-
-    For tracks whose motions may leave a direction of the pose free (where ``refine``'s covariance does not
-    exist): ``pose_information`` divided by sigma^2, sigma the robust scale (``robust_sigma``) of the residuals
-    of the tracks' points triangulated from T_camera_base (``triangulate_tracks``), which should be where a pass
-    of the adjustment ended (``screen_start``).
-
-    Returns:
-        (6, 6) float64, per (rad or m)^2, symmetric positive semi-definite (zero without a triangulated track),
-        and sigma, px (NaN without one).
-    """
-    points, ok = triangulate_tracks(tracks, T_camera_base)
-    if not ok.any():
-        return np.zeros((6, 6)), float("nan")
-    sub = _subset(tracks, ok)
-    q = points[ok] @ T_camera_base[:3, :3].T + T_camera_base[:3, 3]
-    problem = _Problem(sub, T_camera_base)
-    x = np.concatenate([np.zeros(6), q.ravel()])
-    sigma = max(robust_sigma(problem.residuals(x)[:2 * sub.uv.shape[0]].reshape(-1, 2)), 1e-6)
-    S = _schur_information(problem, x)
-    return 0.5 * (S + S.T) / sigma**2, sigma
-
-
 def track_observability(tracks: TrackSet, T_camera_base: FloatArray,
                         keep: NDArray[np.bool_] | None = None) -> tuple[float, FloatArray]:
     """How well the tracks fix the pose near T_camera_base, whatever their noise.
