@@ -376,18 +376,13 @@ class OutlineAdjustment:
         within cap_px). NaN when no point is in front.
         """
         config = replace(self.config.outline, max_match_px=cap_px)
-        total, count = 0.0, 0
-        for cached in self._images:
-            assert cached.contour is not None
-            n = len(cached.contour.points_base)
-            if n == 0:
-                continue
-            _, front = project_base_points(T, cached.contour.points_base, self.intrinsics)
-            pairs = pair_contour_points(T, [cached.contour], [cached.image.edges], self.intrinsics, config)
-            r = outline_residuals(T, pairs.points_base, pairs.edge_points, pairs.normals, self.intrinsics)
-            total += float(np.sum(np.minimum(r**2, cap_px**2))) + (int(front.sum()) - len(r)) * cap_px**2
-            count += int(front.sum())
-        return total / count if count else float("nan")
+        seen = [cached for cached in self._images if cached.contour is not None and len(cached.contour.points_base)]
+        pairs = pair_contour_points(T, [cached.contour for cached in seen], [cached.image.edges for cached in seen],
+                                    self.intrinsics, config)
+        if pairs.in_front == 0:
+            return float("nan")
+        r = outline_residuals(T, pairs.points_base, pairs.edge_points, pairs.normals, self.intrinsics)
+        return (float(np.sum(np.minimum(r**2, cap_px**2))) + (pairs.in_front - len(r)) * cap_px**2) / pairs.in_front
 
     def _check_prior_reach(self, normal: _Normal, covariance_prior: FloatArray) -> None:
         """Refuse a tracks' pose so uncertain that pairing its contours with the nearest edges would be a guess.

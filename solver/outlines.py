@@ -235,11 +235,14 @@ class EdgePairs:
         points_base: (P, 3) float64, metres: contour points in the base frame.
         edge_points: (P, 2) float64, pixels: their paired edge points.
         normals: (P, 2) float64: the edges' unit normals, turned outward (the contour point's outward side).
+        in_front: how many contour points were in front of the camera, paired or not (``pair_contour_points``; 0
+            where the pairs were assembled otherwise).
     """
 
     points_base: FloatArray
     edge_points: FloatArray
     normals: FloatArray
+    in_front: int = 0
 
 
 def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoints], edges: Sequence[ImageEdges],
@@ -252,17 +255,19 @@ def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoi
     """
     cos_min = np.cos(np.radians(config.max_normal_angle_deg))
     parts: list[tuple[FloatArray, FloatArray, FloatArray]] = [(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)))]
+    in_front = 0
     for contour, image in zip(contours, edges, strict=True):
+        pixels, visible = project_base_points(T_camera_base, contour.points_base, intrinsics)
+        in_front += int(visible.sum())
         if len(image.points) == 0:  # an image without edges pairs nothing
             continue
-        pixels, visible = project_base_points(T_camera_base, contour.points_base, intrinsics)
         idx, found = image.nearest(pixels, config.max_match_px)
         normals = image.normals[idx]
         along = np.sum(normals * contour.outward, axis=1)
         keep = visible & found & (np.abs(along) >= cos_min)
         parts.append((contour.points_base[keep], image.points[idx[keep]],
                       normals[keep] * np.sign(along[keep])[:, None]))
-    return EdgePairs(*(np.concatenate(p) for p in zip(*parts, strict=True)))
+    return EdgePairs(*(np.concatenate(p) for p in zip(*parts, strict=True)), in_front=in_front)
 
 
 def project_base_points(T_camera_base: FloatArray, points_base: FloatArray, intrinsics: CameraIntrinsics

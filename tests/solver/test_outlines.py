@@ -86,6 +86,10 @@ def test_an_image_without_edges_pairs_nothing(edges):
     alone = pair_contour_points(T_TRUE, [contour], [edges[0]], CAMERA, OutlineConfig())
     assert len(pairs.points_base) == len(alone.points_base) > 0
     assert len(pair_contour_points(T_TRUE, [contour], [blank], CAMERA, OutlineConfig()).points_base) == 0
+    # the points in front are counted with or without edges: every point of both images, the camera looking at them
+    assert pairs.in_front == 2 * alone.in_front == 2 * len(contour.points_base)
+    behind = perturb(T_TRUE, np.array([0, 0, 0, 0, 0, -5.0]))  # the camera 5 m forward: the robot behind it
+    assert pair_contour_points(behind, [contour], [edges[0]], CAMERA, OutlineConfig()).in_front == 0
 
 
 def test_bad_inputs_are_refused(edges):
