@@ -18,6 +18,8 @@ import importlib
 import os
 
 import mujoco
+import numpy as np
+from numpy.typing import NDArray
 
 from solver.errors import ArcCalibError
 
@@ -61,3 +63,72 @@ def create_renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Re
         return mujoco.Renderer(model, height, width)
     except Exception as exc:
         raise RenderingError(f"offscreen rendering failed with MUJOCO_GL={backend!r}: {exc}. {hint}") from exc
+
+
+def render_geoms_and_depth(renderer: mujoco.Renderer) -> tuple[NDArray[np.int32], NDArray[np.float64]]:
+    """The geom id and the depth of every pixel of the renderer's scene, from one render.
+
+    ``mujoco.Renderer`` renders the scene once for its segmentation image and again for its depth image, in the
+    same mode (segmentation colours: its depth rendering uses them for precision); here one render is read out for
+    both, with the conversions ``mujoco.Renderer.render`` makes. The scene must be up to date (``update_scene``)
+    and its camera a perspective one. It reads the renderer's own context (``_mjr_context``, ``_rect``,
+    ``_gl_context``): where a MuJoCo release names them otherwise, the two renders of the public path are made.
+
+    Returns:
+        (H, W) int32 geom id (-1 where no geom is drawn, or a drawn object is not a geom), and (H, W) float64 depth
+        along the optical axis, metres (the far clipping distance where nothing is drawn).
+    """
+    context, rect = getattr(renderer, "_mjr_context", None), getattr(renderer, "_rect", None)
+    scene = renderer.scene
+    if context is None or rect is None or not hasattr(renderer, "_gl_context") or scene.camera[0].orthographic:
+        return _geoms_and_depth_two_renders(renderer)
+    flags = scene.flags.copy()
+    try:
+        scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
+        scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
+        if renderer._gl_context:
+            renderer._gl_context.make_current()
+        rgb = np.empty((renderer.height, renderer.width, 3), np.uint8)
+        raw = np.empty((renderer.height, renderer.width), np.float32)
+        mujoco.mjr_render(rect, scene, context)
+        mujoco.mjr_readPixels(rgb, raw, rect, context)
+    finally:
+        np.copyto(scene.flags, flags)
+    # segmentation colours: segid + 1 in the 24 bits of (r, g, b), 0 where nothing is drawn
+    segid = rgb[..., 0].astype(np.int32) | (rgb[..., 1].astype(np.int32) << 8) | (rgb[..., 2].astype(np.int32) << 16)
+    geom_of = np.full(scene.ngeom + 2, -1, np.int32)
+    for g in scene.geoms[:scene.ngeom]:
+        if g.segid != -1 and g.objtype == mujoco.mjtObj.mjOBJ_GEOM:
+            geom_of[g.segid + 1] = g.objid
+    geoms = geom_of[np.minimum(segid, scene.ngeom + 1)]
+    depth = _metric_depth(raw, renderer.model)
+    if renderer._gl_context:  # EGL, OSMesa and GLFW read the image bottom row first
+        geoms, depth = geoms[::-1], depth[::-1]
+    return np.ascontiguousarray(geoms), np.ascontiguousarray(depth)
+
+
+def _metric_depth(raw: NDArray[np.float32], model: mujoco.MjModel) -> NDArray[np.float64]:
+    """Metres along the optical axis from a reversed-z depth buffer of a perspective camera, as ``mujoco.Renderer``.
+
+    The same float32 constants as ``mujoco.Renderer.render`` (close to glFrustum's), so that both agree.
+    """
+    extent = model.stat.extent
+    zfar, znear = np.float32(model.vis.map.zfar * extent), np.float32(model.vis.map.znear * extent)
+    c = np.float32(-0.5) * (-(zfar + znear) / (zfar - znear)) - np.float32(0.5)
+    d = np.float32(-0.5) * (-(np.float32(2) * zfar * znear) / (zfar - znear))
+    return (d / (raw.astype(np.float64) + c)).astype(np.float32).astype(np.float64)
+
+
+def _geoms_and_depth_two_renders(renderer: mujoco.Renderer) -> tuple[NDArray[np.int32], NDArray[np.float64]]:
+    renderer.enable_segmentation_rendering()
+    try:
+        seg = renderer.render()
+    finally:
+        renderer.disable_segmentation_rendering()
+    renderer.enable_depth_rendering()
+    try:
+        depth = renderer.render().astype(np.float64)
+    finally:
+        renderer.disable_depth_rendering()
+    geoms = np.where((seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (seg[..., 0] >= 0), seg[..., 0], -1)
+    return geoms.astype(np.int32), depth

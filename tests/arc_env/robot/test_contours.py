@@ -96,3 +96,29 @@ def test_another_thread_renders_the_same(robot, q):
     worker.start()
     worker.join()
     assert np.array_equal(here.points_base, there[0].points_base)
+
+
+def test_one_render_reads_the_geoms_and_depth_that_two_renders_give(robot, q):
+    """``render_geoms_and_depth`` against mujoco.Renderer's own segmentation and depth renders of the same scene."""
+    import mujoco
+
+    from arc_env.robot.rendering import _geoms_and_depth_two_renders, create_renderer, render_geoms_and_depth
+
+    loaded = RobotModel.load(RobotSource())
+    model = loaded.model
+    renderer = create_renderer(model, H, W)
+    try:
+        data = mujoco.MjData(model)
+        data.qpos[loaded.qpos_adr] = q
+        mujoco.mj_kinematics(model, data)
+        camera = mujoco.MjvCamera()
+        mujoco.mjv_defaultFreeCamera(model, camera)
+        renderer.update_scene(data, camera)
+        geoms, depth = render_geoms_and_depth(renderer)
+        want_geoms, want_depth = _geoms_and_depth_two_renders(renderer)
+    finally:
+        renderer.close()
+    assert geoms.shape == (H, W) and (geoms >= 0).sum() > 1000 and (geoms < 0).sum() > 1000
+    assert len(np.unique(geoms[geoms >= 0])) > 5  # many geoms, each with its own id
+    assert np.array_equal(geoms, want_geoms)
+    assert np.array_equal(depth, want_depth)
