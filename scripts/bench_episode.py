@@ -16,7 +16,9 @@ interrupted and resumed; ``--workers N`` runs N episodes at once (one renderer t
 (the camera poses scaled to each arm, ``arc_env.bench.poses.benchmark_view``); ``--sizes
 1920x1080,1280x720`` at each image size (default: ``--width`` x ``--height``); ``--beside-clean`` runs the
 same poses and seeds again with ``--realism clean`` and the painted robot (today's setting; tracked runs
-only) and prints the two looks side by side.
+only) and prints the two looks side by side. Tracked runs use the outline stage as ``calibrate`` does
+(``--outline-frames``, default 3); ``--outline-frames 0`` runs the tracks alone, the setting of every record
+stored before the stage was on by default (their keys have no ``_o3``).
 
 The realism issue's (issue 19) measurement, 10 poses x 3 seeds at 1080p and 720p::
 
@@ -76,6 +78,7 @@ from arc_env.bench.episodes import (
     write_figures,
 )
 from arc_env.robot.library import DEFAULT_ROBOT, ROBOT_NAMES, parse_robot_names
+from arc_env.robot.session import OUTLINE_FRAMES
 from arc_env.sim.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M
 from solver.errors import InvalidInputError
 
@@ -233,9 +236,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--beside-clean", action="store_true",
                         help="also run the same poses and seeds clean with the painted robot (tracked only) and "
                         "print both side by side")
-    parser.add_argument("--outline-frames", type=int, default=0,
+    parser.add_argument("--outline-frames", type=int, default=OUTLINE_FRAMES,
                         help="images per motion for the outline stage (the robot's outlines adjusted with the "
-                             "tracks; tracked runs only); default 0: off")
+                             f"tracks; tracked runs only); default {OUTLINE_FRAMES}; 0: the tracks alone")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
     add_runner_arguments(parser)
     args = parser.parse_args(argv)

@@ -34,9 +34,10 @@ from arc_env.robot.bag import BagRecording, is_bag, read_bag
 from arc_env.robot.exports import calib_name_from, check_frame_name, easy_handeye2_install_path, ros_base_frame
 from arc_env.robot.overlay import RobotProjector, draw_overlay
 from arc_env.robot.recording import Recording, read_recording
+from arc_env.robot.rendering import offscreen_gl_problem
 from arc_env.robot.report import ReportCollector, fan_out, report_html
 from arc_env.robot.segmentation import SegmentConfig
-from arc_env.robot.session import CalibrationRun, UsableCriteria, calibrate_reading_offset
+from arc_env.robot.session import OUTLINE_FRAMES, CalibrationRun, UsableCriteria, calibrate_reading_offset
 from solver.arrays import evenly_spaced
 from solver.errors import InvalidInputError
 from solver.frames import check_transform
@@ -139,6 +140,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
                   installed_calib=easy_handeye2_install_path(calib_name) if args.install_calib else None, report=True)
     check_rerun_save(args, inputs, args.force)
     truth = _read_ground_truth(Path(args.ground_truth)) if args.ground_truth else None
+    outline_frames = outline_frames_from(args)
     started = time.perf_counter()
     recording = read_input(args)
     base_frame = args.base_frame or ros_base_frame(recording.base_body)
@@ -166,7 +168,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     try:
         with Progress(max(len(recording.motions), 1), "motions", enabled=not args.quiet) as bar:
             run = calibrate_reading_offset(read, args.time_offset, on_motion=bar.step,
-                                           observer=fan_out(collected, log), outline_frames=args.outline_frames)
+                                           observer=fan_out(collected, log), outline_frames=outline_frames)
     except BaseException:
         if log is not None:
             log.abort()
@@ -198,9 +200,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_outline_argument(parser: argparse.ArgumentParser) -> None:
     """``--outline-frames N``: the outline stage (``SessionConfig.outline_frames``), for calibrate, run and demo."""
-    parser.add_argument("--outline-frames", type=int, default=0, metavar="N",
+    parser.add_argument("--outline-frames", type=int, default=None, metavar="N",
                         help="combine the tracks' pose with the robot's outlines in N images per motion (its model "
-                             "rendered offscreen: needs EGL or OSMesa); default 0: the tracks alone")
+                             f"rendered offscreen: needs EGL or OSMesa); default {OUTLINE_FRAMES} where an offscreen "
+                             "GL context can be made, else 0 with a note; 0: the tracks alone")
+
+
+def outline_frames_from(args: argparse.Namespace) -> int:
+    """The outline stage's images per motion from ``--outline-frames`` (``add_outline_argument``).
+
+    Not given: ``OUTLINE_FRAMES`` where an offscreen GL context can be made (``offscreen_gl_problem``), else 0 with a
+    note on stderr. Given and above 0 where none can be made: an error that says why and what to install.
+    """
+    asked = getattr(args, "outline_frames", None)
+    if asked is not None and asked < 0:
+        raise InvalidInputError(f"--outline-frames must be >= 0, got {asked}")
+    if asked == 0:
+        return 0
+    problem = offscreen_gl_problem()
+    if not problem:
+        return OUTLINE_FRAMES if asked is None else int(asked)
+    if asked is not None:
+        raise InvalidInputError(f"--outline-frames {asked}: the outline stage renders the robot's model, and {problem}")
+    print(f"note: the outline stage is off (the tracks alone; --outline-frames 0 says so and skips this check): "
+          f"{problem}", file=sys.stderr)
+    return 0
 
 
 def add_input_arguments(parser: argparse.ArgumentParser, time_offset_default: str = "default 0") -> None:

@@ -19,6 +19,7 @@ from arc_env.cli.viewer import check_rerun_save, open_rerun_log
 from arc_env.robot.exports import write_files_atomic
 from arc_env.robot.library import robot_from_arguments
 from arc_env.robot.overlay import draw_overlay, mask_iou
+from arc_env.robot.session import OUTLINE_FRAMES
 from arc_env.sim.env import ArcCalibEnv, EnvConfig
 from arc_env.sim.imaging import realism_settings
 from arc_env.sim.scene import SceneConfig
@@ -45,8 +46,9 @@ def run_demo(args: argparse.Namespace) -> int:
     robot = robot_from_arguments(args.robot, args.base_body)
     scene = SceneConfig(robot=robot, width=args.width, height=args.height, background=args.background,
                         background_seed=args.seed, **realism_settings(args.realism, args.appearance))
+    outline_frames = OUTLINE_FRAMES if args.outline_frames is None else args.outline_frames  # the scene renders: GL
     config = EnvConfig(scene=scene, max_motions=args.motions, oracle_keypoints=args.oracle,
-                       oracle_noise_px=args.noise, outline_frames=0 if args.oracle else args.outline_frames)
+                       oracle_noise_px=args.noise, outline_frames=0 if args.oracle else outline_frames)
     env = ArcCalibEnv(config)
     try:
         return _episode(env, args)

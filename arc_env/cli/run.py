@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arc_env.cli.calibrate import outline_frames_from
 from arc_env.cli.progress import Progress
 from arc_env.cli.result import check_frame_names, check_outputs, finish
 from arc_env.cli.viewer import check_rerun_save, open_rerun_log
@@ -91,8 +92,8 @@ def run_online(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     informed = getattr(args, "planner", "random") == "informed"
     overlap = bool(getattr(args, "overlap", False))
-    session = driver_session(driver, SessionConfig(overlap=overlap, outline_frames=getattr(args, "outline_frames", 0)),
-                             on_sweep)
+    outline_frames = outline_frames_from(args)
+    session = driver_session(driver, SessionConfig(overlap=overlap, outline_frames=outline_frames), on_sweep)
     log = open_rerun_log(args, session.robot, driver.intrinsics, f"run {args.driver}",
                          getattr(driver, "T_camera_base_true", None))  # simulated drivers know the truth
     session.observer = log

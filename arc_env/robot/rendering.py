@@ -14,8 +14,12 @@ hook ``mujoco.Renderer`` reads when it is built).
 from __future__ import annotations
 
 import ctypes.util
+import functools
 import importlib
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -132,3 +136,30 @@ def _geoms_and_depth_two_renders(renderer: mujoco.Renderer) -> tuple[NDArray[np.
         renderer.disable_depth_rendering()
     geoms = np.where((seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (seg[..., 0] >= 0), seg[..., 0], -1)
     return geoms.astype(np.int32), depth
+
+
+#: What ``offscreen_gl_problem``'s child process runs: a renderer of an empty model, built and closed.
+_PROBE = ("import mujoco\nfrom arc_env.robot.rendering import create_renderer\n"
+          "create_renderer(mujoco.MjModel.from_xml_string('<mujoco/>'), 8, 8).close()\nprint('ok')")
+
+
+@functools.cache
+def offscreen_gl_problem(timeout_s: float = 120.0) -> str:
+    """Why no offscreen GL context can be made here, or "" when one can (asked once per process).
+
+    Tried in a child process with this one's environment, because a backend that cannot start may end the process
+    that tries it (seen: GLFW without a display aborted it) rather than raise ``RenderingError``.
+    """
+    try:
+        out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=timeout_s,
+                             cwd=Path(__file__).resolve().parents[2])
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f"offscreen rendering could not be tried ({type(exc).__name__}: {exc})"
+    if out.returncode == 0 and out.stdout.strip().endswith("ok"):
+        return ""
+    lines = [line.strip() for line in (out.stderr + out.stdout).splitlines() if line.strip()]
+    prefix = f"{RenderingError.__module__}.{RenderingError.__name__}: "
+    if lines and lines[-1].startswith(prefix):  # create_renderer's own message: the backend and what to install
+        return lines[-1][len(prefix):]
+    why = lines[-1] if lines else f"exit code {out.returncode}"
+    return f"offscreen rendering failed with MUJOCO_GL={gl_backend()!r} ({why})"

@@ -81,6 +81,12 @@ def motion_refusal_reason(robot: RobotModel, checker: CollisionChecker, min_delt
     return "" if free else f"sweep in collision: {why}"
 
 
+#: Images per motion for the outline stage by default (``SessionConfig.outline_frames``, ``--outline-frames``): on
+#: realistic images the robot's outlines fixed what its few, short tracks could not (README, "The robot's outlines
+#: join the calibration"), and on clean painted ones they cost accuracy nowhere measured.
+OUTLINE_FRAMES = 3
+
+
 @dataclass(frozen=True)
 class SessionConfig:
     """How a session checks, moves and calibrates.
@@ -97,7 +103,8 @@ class SessionConfig:
             (default): each motion is executed, tracked and calibrated before ``step`` returns.
         outline_frames: images per motion (evenly spaced over its sweep) whose edges go to the outline stage
             (``CalibratorConfig.outlines``; the robot's contours rendered from its model by
-            ``arc_env.robot.contours.RobotContours``, which needs an offscreen GL context); 0: off.
+            ``arc_env.robot.contours.RobotContours``, which needs an offscreen GL context); 0: off (the tracks
+            alone). Default ``OUTLINE_FRAMES``.
     """
 
     min_delta: float = 0.2
@@ -107,7 +114,7 @@ class SessionConfig:
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     transit: TransitConfig = field(default_factory=TransitConfig)
     overlap: bool = False
-    outline_frames: int = 0
+    outline_frames: int = OUTLINE_FRAMES
 
     def __post_init__(self) -> None:
         if self.outline_frames < 0:
@@ -719,7 +726,7 @@ def driver_session(driver: RobotDriver, config: SessionConfig | None = None,
 def calibrate_recording(recording: Recording, tracker: TrackerConfig | None = None,
                         config: CalibratorConfig | None = None,
                         on_motion: Callable[[str], None] | None = None,
-                        observer: MotionObserver | None = None, outline_frames: int = 0) -> CalibrationRun:
+                        observer: MotionObserver | None = None, outline_frames: int = OUTLINE_FRAMES) -> CalibrationRun:
     """Track every usable motion and calibrate; motions pruned on the way keep their reasons.
 
     Args:
@@ -803,7 +810,8 @@ OFFSET_PASS_SIGMAS = 2.0
 def calibrate_reading_offset(read: Callable[[float], Recording], given_s: float = 0.0,
                              tracker: TrackerConfig | None = None, config: CalibratorConfig | None = None,
                              on_motion: Callable[[str], None] | None = None, max_passes: int = 3,
-                             observer: MotionObserver | None = None, outline_frames: int = 0) -> CalibrationRun:
+                             observer: MotionObserver | None = None,
+                             outline_frames: int = OUTLINE_FRAMES) -> CalibrationRun:
     """``calibrate_recording``, read again at the corrected time offset while the correction is large.
 
     The bundle adjustment's time-offset estimate is first order in the correction (each frame's turn

@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from arc_env.robot.session import Acquisition, CalibrationSession, SessionConfig, StepResult
+from arc_env.robot.session import OUTLINE_FRAMES, Acquisition, CalibrationSession, SessionConfig, StepResult
 from arc_env.robot.tracking import TrackerConfig
 from arc_env.sim.scene import Scene, SceneConfig, SceneRenderer
 from planners.context import observation_from_estimate
@@ -64,7 +64,7 @@ class EnvConfig:
         overlap: render each motion while a worker thread tracks and calibrates the previous one
             (``SessionConfig.overlap``); ``step`` then reports the previous motion (see "Overlap" in
             ``ArcCalibEnv``'s docstring). Off (default): each step reports its own motion.
-        outline_frames: images per motion for the outline stage (``SessionConfig.outline_frames``); 0: off.
+        outline_frames: images per motion for the outline stage (``SessionConfig.outline_frames``; default 3); 0: off.
     """
 
     scene: SceneConfig = field(default_factory=SceneConfig)
@@ -90,7 +90,7 @@ class EnvConfig:
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     transit: TransitConfig = field(default_factory=TransitConfig)
     overlap: bool = False
-    outline_frames: int = 0
+    outline_frames: int = OUTLINE_FRAMES
 
     def __post_init__(self) -> None:
         if self.max_motions < 1 or self.max_refusals < 1:

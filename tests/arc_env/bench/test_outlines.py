@@ -13,7 +13,8 @@ def test_outlines_improve_a_rough_estimate():
     run = run_outline_episode(SPEC, frames_per_motion=2, stride=1)
     assert run.note == ""
     assert run.start_error is not None and run.outline_error is not None
-    assert run.start_error[1] > 3 * TRANS_TOL  # the start is rough, so the test says something
+    # the start is rough, so the test says something (measured 16 mm on one machine, 14.9 mm on another: BLAS)
+    assert run.start_error[1] > 2 * TRANS_TOL
     assert run.outline_error[1] < TRANS_TOL and run.outline_error[0] < ROT_TOL
     assert run.frames == 2 * run.motions and run.n_pairs > 1000
     assert run_record(run)["spec"]["pose"] == 1

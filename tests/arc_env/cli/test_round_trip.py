@@ -9,6 +9,7 @@ K and gains ``dist``) and encoded as one MP4 per motion -- a distorted camera an
 to keep the suite's time down (PNG-vs-MP4 reading alone is tested in test_recording.py).
 """
 
+import argparse
 import json
 import os
 import shutil
@@ -23,9 +24,11 @@ import pytest
 from arc_env.cli import main
 from arc_env.robot.overlay import RobotProjector
 from arc_env.robot.recording import read_recording, write_video
+from arc_env.robot.session import OUTLINE_FRAMES
 from arc_env.sim.distortion import Distorter
 from arc_env.sim.record import RecordSettings, ground_truth_path, record_episode
 from arc_env.sim.scene import Scene, SceneConfig
+from solver.errors import InvalidInputError
 from solver.frames import pose_difference, pose_errors, transform_from_rt
 from solver.observations import CameraIntrinsics
 from tests.support.joints_csv import read_joints_csv, write_joints_csv
@@ -237,6 +240,9 @@ def test_calibrate_needs_no_gl_context(recording, tmp_path):
                          timeout=600)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "SIM False" in out.stdout and result.is_file() and list(overlay.glob("overlay_motion_*.png"))
+    # the outline stage, on by default, is off here and says why; the tracks alone calibrate
+    assert "the outline stage is off" in out.stderr and "MUJOCO_GL='glfw'" in out.stderr, out.stderr
+    assert json.loads(result.read_text())["outlines"] is None
     assert "empty prefix" not in out.stdout + out.stderr and not (root / "MUJOCO_LOG.TXT").exists()
 
 
@@ -286,3 +292,20 @@ def test_the_outline_stage_joins_a_recordings_calibration(recording, tmp_path, c
     xi = pose_difference(np.asarray(result["T_camera_base"]), T_true)
     assert xi @ np.linalg.solve(np.asarray(result["covariance"]), xi) < 22.46  # chi-square, 6 dof, 0.999
     _assert_close_to_truth(result, ground_truth_path(recording))
+
+
+def test_the_outline_stage_is_on_by_default_where_gl_works_and_refused_when_asked_for_without(monkeypatch, capsys):
+    from arc_env.cli import calibrate
+
+    monkeypatch.setattr(calibrate, "offscreen_gl_problem", lambda: "")
+    assert calibrate.outline_frames_from(argparse.Namespace(outline_frames=None)) == OUTLINE_FRAMES == 3
+    assert calibrate.outline_frames_from(argparse.Namespace(outline_frames=5)) == 5
+    monkeypatch.setattr(calibrate, "offscreen_gl_problem", lambda: "no GL here")
+    assert calibrate.outline_frames_from(argparse.Namespace(outline_frames=None)) == 0
+    assert "the outline stage is off" in capsys.readouterr().err
+    with pytest.raises(InvalidInputError, match="--outline-frames 3: .*no GL here"):
+        calibrate.outline_frames_from(argparse.Namespace(outline_frames=3))
+    monkeypatch.setattr(calibrate, "offscreen_gl_problem", lambda: pytest.fail("0 needs no GL: not probed"))
+    assert calibrate.outline_frames_from(argparse.Namespace(outline_frames=0)) == 0
+    with pytest.raises(InvalidInputError, match=">= 0"):
+        calibrate.outline_frames_from(argparse.Namespace(outline_frames=-1))
