@@ -158,6 +158,14 @@ def contour_from_depth(depth: FloatArray, mask: NDArray[np.bool_], T_camera_base
     if stride < 1 or min_step_m <= 0:
         raise InvalidInputError(f"need stride >= 1 and min_step_m > 0, got {stride}, {min_step_m}")
     T = check_transform(np.asarray(T_camera_base, dtype=np.float64), "T_camera_base")
+    # only the model's bounding box and a pixel around it can hold a contour point or its neighbour; where the box
+    # meets the image's border, so does the crop (no neighbour there, as in the whole image)
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if len(rows) == 0:
+        return ContourPoints(np.zeros((0, 3)), np.zeros((0, 2)))
+    v0, v1 = max(int(rows[0]) - 1, 0), min(int(rows[-1]) + 2, depth.shape[0])
+    u0, u1 = max(int(cols[0]) - 1, 0), min(int(cols[-1]) + 2, depth.shape[1])
+    depth, mask = depth[v0:v1, u0:u1], mask[v0:v1, u0:u1]
     far = np.where(np.isnan(depth), np.inf, depth)
     us, vs, zs, outs = [], [], [], []
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
@@ -168,8 +176,8 @@ def contour_from_depth(depth: FloatArray, mask: NDArray[np.bool_], T_camera_base
         with np.errstate(invalid="ignore"):  # inf - inf off the model: not a contour either way
             v, u = np.nonzero(mask & (neighbour - far >= min_step_m))
         v, u = v[::stride], u[::stride]
-        us.append(u + 0.5 * du)
-        vs.append(v + 0.5 * dv)
+        us.append(u + u0 + 0.5 * du)
+        vs.append(v + v0 + 0.5 * dv)
         zs.append(depth[v, u])
         outs.append(np.tile(np.array([du, dv], dtype=np.float64), (len(u), 1)))
     u, v, z = np.concatenate(us), np.concatenate(vs), np.concatenate(zs)

@@ -125,6 +125,24 @@ def test_contour_from_depth_traces_the_true_outline():
     assert len(contour_from_depth(depth, mask, T, K, stride=4).points_base) < len(px) / 3
 
 
+def test_a_model_cut_by_the_image_border_has_no_contour_along_it():
+    # the sphere's centre projects 20 px inside the left border: its disk runs off the image there
+    centre = np.array([(20.0 - K[0, 2]) / K[0, 0], 0.0, 0.0])
+    T = transform_from_rt(np.eye(3), np.array([0.0, 0.0, 1.0]))
+    depth, mask = sphere_depth(T, [(tuple(centre), 0.1)])
+    assert mask[:, 0].any()
+    points = contour_from_depth(depth, mask, T, K).points_base
+    px = project_px(T, points)
+    # every contour point's ray grazes the sphere (its distance from the centre is the radius, to a pixel's
+    # width at 1 m: 1.7 mm)
+    cam, centre_cam = points + T[:3, 3], centre + T[:3, 3]  # the camera frame (T turns nothing)
+    rays = cam / np.linalg.norm(cam, axis=1, keepdims=True)
+    miss = np.linalg.norm(centre_cam - (rays @ centre_cam)[:, None] * rays, axis=1)
+    assert np.max(np.abs(miss - 0.1)) < 1.7e-3
+    assert px[:, 0].min() > -0.25 and len(px) > 150  # the arc inside the image, none at u = -0.5 along the border
+    assert len(contour_from_depth(depth, np.zeros_like(mask), T, K).points_base) == 0  # no model, no contour
+
+
 def test_the_pose_is_recovered_with_contours_from_rendered_depth(edges):
     def model(T):
         return [contour_from_depth(*sphere_depth(T, spheres), T, K) for spheres in SCENES]
