@@ -33,6 +33,9 @@ A record (``dict``):
   while the state has no 1-sigma;
 * ``chi2_curve``: per executed motion the truth's chi-square in the state's covariance (:func:`truth_chi2`: 6
   degrees of freedom; under 12.59 when the 95 % region holds the truth), ``null`` without a covariance;
+* ``error_curve``: per executed motion the estimate's error ``pose_difference(estimate, truth)`` (6,) (omega rad, tau
+  m), ``null`` without an estimate; ``covariance_curve``: the state's 6x6 covariance (nested lists), ``null``
+  without one: together they say which direction a miss of the 95 % region lies in;
 * ``false_convergence``: executed motions after which the state said it had converged while its true
   error was over 3 times its reported 1-sigma (:func:`falsely_converged`: rotation error > 3 x the norm
   of the three rotation 1-sigmas, or translation error > 3 x the norm of the three translation ones).
@@ -266,7 +269,8 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
     record: dict[str, Any] = {"spec": asdict(spec), "commit": code_version(), "curve": [], "planning": [],
                               "frames": 0, "converged_at": None, "refused": 0, "in_collision": 0,
                               "T_camera_base": None, "note": "", "tracks": [], "full_tracks": [],
-                              "std_curve": [], "chi2_curve": [], "false_convergence": 0, "outline_curve": [],
+                              "std_curve": [], "chi2_curve": [], "error_curve": [], "covariance_curve": [],
+                              "false_convergence": 0, "outline_curve": [],
                               "outline_note": ""}
     env, obs = make_env(spec)
     try:
@@ -308,6 +312,10 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
             state = session.calibrator.state
             record["std_curve"].append(std_maxima(state.std))
             record["chi2_curve"].append(truth_chi2(state, env.T_camera_base_true))
+            record["error_curve"].append(None if state.T_camera_base is None else
+                                         pose_difference(state.T_camera_base, env.T_camera_base_true).tolist())
+            record["covariance_curve"].append(None if state.covariance is None else
+                                              np.asarray(state.covariance, dtype=np.float64).tolist())
             record["false_convergence"] += falsely_converged(state, info["rot_error_rad"], info["trans_error_m"])
             record["outline_curve"].append(state.outline is not None)
             record["outline_note"] = state.outline_note

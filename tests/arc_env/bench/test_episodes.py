@@ -73,6 +73,12 @@ def test_a_run_is_recorded_and_stored(stored):
     # a chi-square wherever there is a 1-sigma (the same covariance), and only there
     assert [c is None for c in record["chi2_curve"]] == [s is None for s in record["std_curve"]]
     assert any(c is not None for c in record["chi2_curve"]) and all(c is None or c >= 0 for c in record["chi2_curve"])
+    # the error and covariance curves give the chi-square again (an independent computation of it)
+    for xi, cov, c in zip(record["error_curve"], record["covariance_curve"], record["chi2_curve"], strict=True):
+        if c is not None:
+            xi, cov = np.asarray(xi), np.asarray(cov)
+            assert xi.shape == (6,) and cov.shape == (6, 6)
+            assert np.isclose(xi @ np.linalg.solve(cov, xi), c, rtol=1e-6)
     # Each motion with an axis got it from the rigid front end or the conics (or both gave one).
     assert record["axes_rigid"] <= record["axes"] <= record["axes_conics"] + record["axes_rigid"]
     assert record["axes"] <= SPEC.motions
