@@ -239,8 +239,9 @@ class OutlineAdjustment:
             T_start: (4, 4) float64: where the adjustment starts (e.g. the last fused pose); None: T_prior. It
                 must put the outlines within ``OutlineConfig.max_match_px`` of the images' edges.
             free_direction: (3,) a translation direction (camera frame) that the tracks leave free and the caller
-                has searched (``search_along``: T_start is its best pose): the prior's reach is judged without it,
-                and images from ``min_groups_along`` motions suffice.
+                has searched (``search_along``: T_start is its best pose): the prior's reach is judged with it fixed
+                (the prior's covariance conditioned on it: its marginal keeps whatever of the direction's metres of
+                variance the rest shares), and images from ``min_groups_along`` motions suffice.
 
         Raises:
             InvalidInputError: a non-rigid pose, a covariance that is not finite, symmetric positive definite, or a
@@ -254,14 +255,15 @@ class OutlineAdjustment:
             L_inv = np.linalg.inv(np.linalg.cholesky(C0))
         except np.linalg.LinAlgError as exc:
             raise InvalidInputError("the prior covariance is not positive definite") from exc
+        P0 = L_inv.T @ L_inv
         reach = C0
         if free_direction is not None:
             w = np.concatenate([np.zeros(3), _unit(free_direction)])
             Q = np.eye(6) - np.outer(w, w)
-            reach = Q @ C0 @ Q
+            reach = np.linalg.pinv(Q @ P0 @ Q, rcond=1e-10, hermitian=True)
         self._require_groups(self.config.min_groups if free_direction is None else self.config.min_groups_along)
         T = T0 if T_start is None else check_transform(np.asarray(T_start, dtype=np.float64), "T_start")
-        return self._fuse(T0, L_inv.T @ L_inv, T, reach)
+        return self._fuse(T0, P0, T, reach)
 
     def search_along(self, T: FloatArray, direction: FloatArray, offsets: FloatArray) -> tuple[FloatArray, float]:
         """The translation along a direction the tracks leave free that puts the robot's contours on the edges.

@@ -120,9 +120,10 @@ def test_too_few_motions_or_bad_priors_are_refused(edges):
         OutlineImage(edges[0], np.array([np.nan]), 0)
 
 
-def _free_along(u: np.ndarray, strength: float = 1e8) -> np.ndarray:
-    """(6, 6) covariance: 1/sqrt(strength) in every direction but the translation along u (10 m there: free)."""
-    w = np.concatenate([np.zeros(3), u])
+def _free_along(u: np.ndarray, strength: float = 1e8, omega: np.ndarray | None = None) -> np.ndarray:
+    """(6, 6) covariance: 1/sqrt(strength) in every direction but (omega, u) (10 m there: free; omega 0 by default)."""
+    w = np.concatenate([np.zeros(3) if omega is None else omega, u])
+    w /= np.linalg.norm(w)
     basis, _ = np.linalg.qr(np.column_stack([w, np.eye(6)]))
     return basis @ np.diag([1e2] + [1.0 / strength] * 5) @ basis.T
 
@@ -153,6 +154,22 @@ def test_the_outlines_fix_the_depth_the_tracks_leave_free(edges):
     assert np.sqrt(w @ fusion.covariance @ w) < 5e-3
     with pytest.raises(InsufficientMotionsError, match="too uncertain"):  # not without the direction searched
         _adjustment(edges, OutlineFusionConfig()).fuse(prior, _free_along(RAY), start)
+
+
+def test_the_reach_is_judged_with_the_searched_direction_fixed(edges):
+    """The tracks' free direction turns too (10 mrad per 10 cm along the ray), where the search moves along the
+    ray alone: the prior's marginal covariance off the ray keeps ~1 rad of it, yet with the ray fixed the rest is
+    tight, so the fusion goes ahead (as-shipped Panda 1080p pose 3: refused at 19.4 px and 10.5 px, pose dropped)."""
+    omega = np.array([0.0, 0.1, 0.0])
+    prior = perturb(T_TRUE, 0.3 * np.concatenate([omega, RAY]))  # 30 cm along the free line from the truth
+    C = _free_along(RAY, omega=omega)
+    Q = np.eye(6) - np.outer(*2 * [np.concatenate([np.zeros(3), RAY])])
+    assert np.sqrt(np.max(np.diag(Q @ C @ Q)[:3])) > 0.5  # its marginal off the ray: 1 rad (21 px of reach)
+    adjustment = _adjustment(edges, OutlineFusionConfig())
+    start, _ = adjustment.search_along(prior, RAY, np.linspace(-0.6, 0.6, 40))
+    fusion = adjustment.fuse(prior, C, start, free_direction=RAY)
+    err = pose_difference(fusion.T_camera_base, T_TRUE)
+    assert np.linalg.norm(err[:3]) < ROT_TOL and np.linalg.norm(err[3:]) < TRANS_TOL
 
 
 def test_tracks_sure_of_their_depth_keep_it(edges):
