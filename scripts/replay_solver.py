@@ -24,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from arc_env.bench.capture import capture_episode, load_capture, replay, save_capture  # noqa: E402
-from arc_env.bench.episodes import EpisodeSpec  # noqa: E402
+from arc_env.bench.episodes import EpisodeSpec, truth_chi2  # noqa: E402
 from arc_env.robot.library import ROBOT_NAMES  # noqa: E402
 from arc_env.robot.session import OUTLINE_FRAMES  # noqa: E402
 from arc_env.sim.imaging import APPEARANCES, REALISMS  # noqa: E402
@@ -63,8 +63,9 @@ def main(argv: list[str] | None = None) -> int:
         if state.T_camera_base is not None:
             xi = pose_difference(state.T_camera_base, capture.T_true)
             line += f" {np.linalg.norm(xi[:3]):.2e} rad {np.linalg.norm(xi[3:]) * 1e3:7.2f} mm"
-            if state.covariance is not None:
-                line += f"  chi2 {float(xi @ np.linalg.solve(state.covariance, xi)):6.1f}"
+            chi2 = truth_chi2(state, capture.T_true)
+            if chi2 is not None:
+                line += f"  chi2 {chi2:6.1f}"
         why = state.message or state.outline_note
         print(line + (f"  | {why}" if why else ""))
     return 0

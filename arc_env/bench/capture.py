@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from arc_env.bench.episodes import EpisodeSpec, make_env
+from arc_env.bench.episodes import EpisodeSpec, episode_planner, make_env
 from arc_env.robot.contours import RobotContours
 from arc_env.robot.exports import write_files_atomic
 from arc_env.robot.model import RobotModel, RobotSource
@@ -57,9 +57,6 @@ class Capture:
 
 def capture_episode(spec: EpisodeSpec) -> Capture:
     """Run ``spec``'s episode (random or informed planner, as the benchmark) and keep its calibrator's inputs."""
-    from planners.informed import InformedPlanner
-    from planners.random_planner import RandomPlanner
-
     if spec.method not in ("random", "informed") or spec.oracle:
         raise InvalidInputError(f"a capture needs a tracked random or informed episode, got {spec}")
     calls: list[tuple[Any, bool, tuple[Any, ...]]] = []
@@ -77,8 +74,7 @@ def capture_episode(spec: EpisodeSpec) -> Capture:
             return report
 
         calibrator.add_motion = spy  # type: ignore[method-assign]
-        planner = (RandomPlanner if spec.method == "random" else InformedPlanner)(
-            env.session, np.random.default_rng(spec.rng_seed))
+        planner = episode_planner(env, spec)
         done = 0
         while done < spec.motions:
             try:

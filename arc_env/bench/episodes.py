@@ -258,10 +258,16 @@ def make_env(spec: EpisodeSpec, board: bool = False):  # noqa: ANN202  (ArcCalib
     return env, obs
 
 
-def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
+def episode_planner(env: Any, spec: EpisodeSpec) -> Any:  # (ArcCalibEnv) -> Planner; both imported lazily
+    """The planner of ``spec``'s episode on ``env`` (``make_env``): random or informed, seeded by ``spec.rng_seed``."""
     from planners.informed import InformedPlanner
     from planners.random_planner import RandomPlanner
 
+    planner_cls = RandomPlanner if spec.method == "random" else InformedPlanner
+    return planner_cls(env.session, np.random.default_rng(spec.rng_seed))
+
+
+def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
     started = time.perf_counter()
     # "report": the solver's time on the conic front end for the benchmark's report alone (``conics_always``),
     # moved out of "solver", which is then what the default settings spend
@@ -274,8 +280,7 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
                               "outline_note": ""}
     env, obs = make_env(spec)
     try:
-        planner_cls = RandomPlanner if spec.method == "random" else InformedPlanner
-        planner = planner_cls(env.session, np.random.default_rng(spec.rng_seed))
+        planner = episode_planner(env, spec)
         while len(record["curve"]) < spec.motions:
             t0 = time.perf_counter()
             try:

@@ -1,5 +1,7 @@
 """arc_env.bench.capture: a rendered episode's calibrator inputs, replayed through the solver alone."""
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -34,7 +36,7 @@ def test_the_script_prints_each_motion_and_bad_input_is_refused(capture, tmp_pat
     assert load_script("replay_solver").main(["replay", str(tmp_path / "c.pkl")]) == 0
     out = capsys.readouterr().out
     assert SPEC.key in out and sum(line.lstrip().startswith(("1 ", "2 ", "3 ", "4 ")) for line in out.splitlines()) == 4
-    (tmp_path / "not.pkl").write_bytes(__import__("pickle").dumps({"a": 1}))
+    (tmp_path / "not.pkl").write_bytes(pickle.dumps({"a": 1}))
     with pytest.raises(InvalidInputError, match="not a capture"):
         load_capture(tmp_path / "not.pkl")
     with pytest.raises(InvalidInputError, match="tracked"):
