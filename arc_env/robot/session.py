@@ -889,6 +889,9 @@ def state_unusable_reason(s: CalibrationState, n_accepted: int, criteria: Usable
         return f"no estimate: {s.message}"
     if s.stage != "refined" or s.std is None:
         return f"only a {s.stage} estimate (the bundle adjustment gave none: {s.message or 'see motions'})"
+    if s.start == "outlines":  # the rescue marks no motion accepted: say what the pose rests on instead
+        return ("the pose rests on the robot's outlines fixing a direction the tracks leave free (the tracks alone "
+                "give no refined pose yet); record more motions, of joints whose axes do not all meet in one point")
     if n_accepted < criteria.min_motions:
         return f"only {n_accepted} motion(s) inform the estimate (need {criteria.min_motions})"
     std_deg, std_mm = np.degrees(s.std[:3]), s.std[3:] * 1e3

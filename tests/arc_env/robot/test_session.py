@@ -10,9 +10,16 @@ import pytest
 from arc_env.robot.driver import Sweep
 from arc_env.robot.model import RobotModel, RobotSource
 from arc_env.robot.recording import RecordedMotion
-from arc_env.robot.session import CalibrationSession, DriverExecutor, track_recorded
+from arc_env.robot.session import (
+    CalibrationSession,
+    DriverExecutor,
+    UsableCriteria,
+    state_unusable_reason,
+    track_recorded,
+)
 from solver.errors import InvalidInputError
 from solver.observations import CameraIntrinsics
+from solver.pipeline import CalibrationState
 
 CAMERA = CameraIntrinsics.from_fov(200.0, 320, 240)
 
@@ -418,3 +425,14 @@ def test_outline_frames_reach_the_calibrator_with_their_configurations(robot, ov
             np.testing.assert_allclose(im.q, expected, atol=1e-12)
     with pytest.raises(InvalidInputError, match="outline_frames"):
         SessionConfig(outline_frames=-1)
+
+
+def test_the_unusable_reason_of_a_rescued_pose_says_what_it_rests_on():
+    std = np.full(6, 1e-4)
+    state = CalibrationState(np.eye(4), "refined", None, np.diag(std**2), std, None, False, 0, 3, None, "",
+                             start="outlines")
+    why = state_unusable_reason(state, 0, UsableCriteria())
+    assert "outlines" in why and "inform the estimate" not in why
+    ordinary = replace(state, start="linear")
+    assert state_unusable_reason(ordinary, 0, UsableCriteria()) == "only 0 motion(s) inform the estimate (need 4)"
+    assert state_unusable_reason(ordinary, 4, UsableCriteria()) == ""
