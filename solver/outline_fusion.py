@@ -63,8 +63,9 @@ __all__ = ["ContourRenderer", "OutlineAdjustment", "OutlineFusion", "OutlineFusi
 #: The robot's occluding contour with the arm at q (n,) rad, seen from T_camera_base (4, 4).
 ContourRenderer = Callable[[FloatArray, FloatArray], ContourPoints]
 
-#: A Gauss-Newton step, or a pairing's whole move, smaller than this in every parameter (rad, m) ends it.
-_CONVERGED_STEP = 1e-7
+#: A Gauss-Newton step, or a pairing's whole move, shorter than this in units of the fused pose's 1-sigma (its length
+#: under the prior's information plus the outlines' honest one at the fuse's start) ends it.
+_CONVERGED_SIGMA = 0.02
 
 
 @dataclass(frozen=True)
@@ -327,7 +328,7 @@ class OutlineAdjustment:
     def _fuse(self, T0: FloatArray, P: FloatArray, T: FloatArray, reach_covariance: FloatArray) -> OutlineFusion:
         """The adjustment from T with the tracks' pose T0 and information P (6, 6) as the prior; the combination."""
         cfg = self.config
-        reach_checked = False
+        metric: FloatArray | None = None  # the fused pose's information, for convergence: set at the first pairing
         rendered = 0
         for round_ in range(cfg.renders):
             fresh = self._render_where_moved(T)
@@ -339,16 +340,16 @@ class OutlineAdjustment:
                 T_paired = T
                 for _ in range(cfg.gauss_newton_steps):
                     normal = self._normal(T, pairs, groups)
-                    if not reach_checked:  # at the start's first pairing
+                    if metric is None:  # at the start's first pairing
                         self._check_prior_reach(normal, reach_covariance)
-                        reach_checked = True
+                        metric = P + np.linalg.inv(self._outline_covariance(normal))
                     d = pose_difference(T0, T)
-                    H = P + normal.information
-                    step = -np.linalg.solve(H, P @ d + normal.gradient)
+                    step = -np.linalg.solve(P + normal.information, P @ d + normal.gradient)
                     T = perturb(T, step)
-                    if np.max(np.abs(step)) < _CONVERGED_STEP:
+                    if step @ metric @ step < _CONVERGED_SIGMA**2:
                         break
-                if np.max(np.abs(pose_difference(T_paired, T))) < _CONVERGED_STEP:
+                moved = pose_difference(T_paired, T)
+                if moved @ metric @ moved < _CONVERGED_SIGMA**2:
                     break
         pairs, groups = self._pairs(T)
         normal = self._normal(T, pairs, groups)

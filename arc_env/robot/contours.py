@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 
 from arc_env.robot.model import RobotModel
-from arc_env.robot.rendering import create_renderer, render_geoms_and_depth
+from arc_env.robot.rendering import Window, create_renderer, render_geoms_and_depth
 from solver.arrays import FloatArray
 from solver.errors import InvalidInputError
 from solver.frames import check_transform
@@ -65,13 +65,17 @@ class RobotContours:
         self._rays = (((u - cx) / fy).astype(np.float32), ((v - cy) / fy).astype(np.float32))
         self._robot_geom = np.zeros(m.ngeom + 1, dtype=bool)
         self._robot_geom[:-1] = np.isin(m.geom_bodyid, self.robot.robot_bodies) & (m.geom_group <= 2)
+        self._drawn = np.flatnonzero(self._robot_geom[:-1])  # the robot's geoms that are drawn
         self._local = threading.local()
 
     def __call__(self, T_camera_base: FloatArray, q: FloatArray) -> ContourPoints:
         """The contour with the arm at q (n,) rad seen from T_camera_base (4, 4)."""
         T = check_transform(np.asarray(T_camera_base, dtype=np.float64), "T_camera_base")
-        depth, mask = self.depth_and_mask(T, q)
-        return contour_from_depth(depth, mask, T, self.K_render, self.min_step_m, self.stride)
+        depth, mask, (u0, v0, _, _) = self._depth_and_mask_window(T, q)
+        K = self.K_render.copy()
+        K[0, 2] -= u0  # the window's own pinhole: its pixel (0, 0) is the image's (u0, v0)
+        K[1, 2] -= v0
+        return contour_from_depth(depth, mask, T, K, self.min_step_m, self.stride)
 
     def depth_and_mask(self, T_camera_base: FloatArray, q: FloatArray) -> tuple[FloatArray, np.ndarray]:
         """The depth and the robot's pixels with the arm at q (n,) rad, the camera at T_camera_base (4, 4).
@@ -80,17 +84,58 @@ class RobotContours:
             (H, W) float64 depth along the optical axis, metres (behind the robot the support plane, or +inf),
             and (H, W) bool, the robot's pixels.
         """
+        T = check_transform(np.asarray(T_camera_base, dtype=np.float64), "T_camera_base")
+        depth_window, mask_window, (u0, v0, u1, v1) = self._depth_and_mask_window(T, q)
+        shape = (self.intrinsics.height, self.intrinsics.width)
+        depth = (self._plane_depth(T @ np.linalg.inv(self.robot.T_world_base), shape).astype(np.float64)
+                 if self.ground else np.full(shape, np.inf))
+        mask = np.zeros(shape, dtype=bool)
+        depth[v0:v1, u0:u1], mask[v0:v1, u0:u1] = depth_window, mask_window
+        return depth, mask
+
+    def _depth_and_mask_window(self, T_camera_base: FloatArray, q: FloatArray
+                               ) -> tuple[FloatArray, np.ndarray, Window]:
+        """``depth_and_mask`` in the window that holds the robot (``_window``): (h, w) depth, (h, w) mask, window.
+
+        Outside the window the robot has no pixel, and the depth is the support plane's (or +inf).
+        """
         renderer, data = self._renderer()
         data.qpos[self.robot.qpos_adr] = self.robot.check_q(q)
         mujoco.mj_kinematics(self.robot.model, data)
         T_camera_world = T_camera_base @ np.linalg.inv(self.robot.T_world_base)
         renderer.update_scene(data, mujoco.MjvCamera())
         self._place_camera(renderer, T_camera_world)
-        geoms, depth = render_geoms_and_depth(renderer)
+        window = self._window(data, T_camera_world)
+        geoms, depth = render_geoms_and_depth(renderer, window)
         mask = self._robot_geom[geoms]  # -1 (none) reads the last entry: False
         if not self.ground:
-            return np.where(mask, depth, np.inf), mask
-        return np.where(mask, depth, self._plane_depth(T_camera_world, depth.shape)), mask
+            return np.where(mask, depth, np.inf), mask, window
+        return np.where(mask, depth, self._plane_depth(T_camera_world, depth.shape, window)), mask, window
+
+    def _window(self, data: mujoco.MjData, T_camera_world: FloatArray) -> Window:
+        """Pixels that hold every drawn robot geom's bounding sphere (the whole image where one reaches the camera).
+
+        A sphere lies in the box of its centre +- its radius, whose image lies between the projections of the box's
+        corners (x / z and y / z are monotone along each axis where z > 0); two pixels of margin around it, so that
+        ``contour_from_depth`` finds each robot pixel's neighbours as in the whole image.
+        """
+        w, h = self.intrinsics.width, self.intrinsics.height
+        radius = self.robot.model.geom_rbound[self._drawn]
+        centre = data.geom_xpos[self._drawn] @ T_camera_world[:3, :3].T + T_camera_world[:3, 3]
+        near = self.robot.model.vis.map.znear * self.robot.model.stat.extent
+        if len(radius) == 0 or np.any(radius <= 0) or np.any(centre[:, 2] - radius <= near):
+            return 0, 0, w, h
+        f, cx, cy = self.K_render[1, 1], self.K_render[0, 2], self.K_render[1, 2]
+        z = np.stack([centre[:, 2] - radius, centre[:, 2] + radius], axis=1)[:, :, None]  # (G, 2, 1)
+        x = np.stack([centre[:, 0] - radius, centre[:, 0] + radius], axis=1)[:, None, :]  # (G, 1, 2)
+        y = np.stack([centre[:, 1] - radius, centre[:, 1] + radius], axis=1)[:, None, :]
+        u, v = f * x / z + cx, f * y / z + cy
+        u0, u1 = int(np.floor(u.min())) - 2, int(np.ceil(u.max())) + 3
+        v0, v1 = int(np.floor(v.min())) - 2, int(np.ceil(v.max())) + 3
+        u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, w), min(v1, h)
+        if u0 >= u1 or v0 >= v1:  # the robot is not in view: a pixel's window renders it as not there
+            return 0, 0, 1, 1
+        return u0, v0, u1, v1
 
     def _renderer(self) -> tuple[mujoco.Renderer, mujoco.MjData]:
         local = self._local
@@ -118,9 +163,16 @@ class RobotContours:
             eye.frustum_top = (cy + 0.5) / f * near
             eye.frustum_bottom = -(h - 0.5 - cy) / f * near
 
-    def _plane_depth(self, T_camera_world: FloatArray, shape: tuple[int, ...]) -> FloatArray:
-        """(H, W) float32 depth of the world's z = 0 plane along each pixel's ray (+inf where the ray misses it)."""
+    def _plane_depth(self, T_camera_world: FloatArray, shape: tuple[int, ...], window: Window | None = None
+                     ) -> FloatArray:
+        """(h, w) float32 depth of the world's z = 0 plane along each pixel's ray of ``window`` (None: the image).
+
+        +inf where the ray misses the plane.
+        """
         x, y = self._rays
+        if window is not None:
+            u0, v0, u1, v1 = window
+            x, y = x[v0:v1, u0:u1], y[v0:v1, u0:u1]
         if x.shape != tuple(shape):
             raise InvalidInputError(f"a depth image of {shape} for a camera of {x.shape}")
         R_world_camera = T_camera_world[:3, :3].T

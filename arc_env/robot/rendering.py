@@ -25,7 +25,7 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from solver.errors import ArcCalibError
+from solver.errors import ArcCalibError, InvalidInputError
 
 #: Backends ``create_renderer`` can use on Linux, with the MuJoCo module that provides each context.
 _BACKENDS = {"egl": "mujoco.egl", "osmesa": "mujoco.osmesa", "glfw": "mujoco.glfw"}
@@ -69,8 +69,13 @@ def create_renderer(model: mujoco.MjModel, height: int, width: int) -> mujoco.Re
         raise RenderingError(f"offscreen rendering failed with MUJOCO_GL={backend!r}: {exc}. {hint}") from exc
 
 
-def render_geoms_and_depth(renderer: mujoco.Renderer) -> tuple[NDArray[np.int32], NDArray[np.float64]]:
-    """The geom id and the depth of every pixel of the renderer's scene, from one render.
+#: A pixel window (u0, v0, u1, v1) of an image: columns u0 <= u < u1, rows v0 <= v < v1 (row 0 at the top).
+Window = tuple[int, int, int, int]
+
+
+def render_geoms_and_depth(renderer: mujoco.Renderer, window: Window | None = None
+                           ) -> tuple[NDArray[np.int32], NDArray[np.float64]]:
+    """The geom id and the depth of every pixel of the renderer's scene (or of a window of it), from one render.
 
     ``mujoco.Renderer`` renders the scene once for its segmentation image and again for its depth image, in the
     same mode (segmentation colours: its depth rendering uses them for precision); here one render is read out for
@@ -78,24 +83,36 @@ def render_geoms_and_depth(renderer: mujoco.Renderer) -> tuple[NDArray[np.int32]
     and its camera a perspective one. It reads the renderer's own context (``_mjr_context``, ``_rect``,
     ``_gl_context``): where a MuJoCo release names them otherwise, the two renders of the public path are made.
 
+    Args:
+        renderer: the renderer, its scene updated.
+        window: read out and convert only these pixels (the whole scene is rendered either way); None: all.
+
     Returns:
-        (H, W) int32 geom id (-1 where no geom is drawn, or a drawn object is not a geom), and (H, W) float64 depth
-        along the optical axis, metres (the far clipping distance where nothing is drawn).
+        (h, w) int32 geom id (-1 where no geom is drawn, or a drawn object is not a geom), and (h, w) float64 depth
+        along the optical axis, metres (the far clipping distance where nothing is drawn); (h, w) is the window's
+        size, or the renderer's (H, W).
     """
+    u0, v0, u1, v1 = (0, 0, renderer.width, renderer.height) if window is None else window
+    if not (0 <= u0 < u1 <= renderer.width and 0 <= v0 < v1 <= renderer.height):
+        raise InvalidInputError(f"window {window} is not a non-empty part of a {renderer.width}x{renderer.height} "
+                                "image")
     context, rect = getattr(renderer, "_mjr_context", None), getattr(renderer, "_rect", None)
     scene = renderer.scene
     if context is None or rect is None or not hasattr(renderer, "_gl_context") or scene.camera[0].orthographic:
-        return _geoms_and_depth_two_renders(renderer)
+        geoms, depth = _geoms_and_depth_two_renders(renderer)
+        return np.ascontiguousarray(geoms[v0:v1, u0:u1]), np.ascontiguousarray(depth[v0:v1, u0:u1])
     flags = scene.flags.copy()
     try:
         scene.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
         scene.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
         if renderer._gl_context:
             renderer._gl_context.make_current()
-        rgb = np.empty((renderer.height, renderer.width, 3), np.uint8)
-        raw = np.empty((renderer.height, renderer.width), np.float32)
+        rgb = np.empty((v1 - v0, u1 - u0, 3), np.uint8)
+        raw = np.empty((v1 - v0, u1 - u0), np.float32)
         mujoco.mjr_render(rect, scene, context)
-        mujoco.mjr_readPixels(rgb, raw, rect, context)
+        # GL's rows count from the bottom (the contexts here read the bottom row first: flipped below)
+        bottom = renderer.height - v1 if renderer._gl_context else v0
+        mujoco.mjr_readPixels(rgb, raw, mujoco.MjrRect(u0, bottom, u1 - u0, v1 - v0), context)
     finally:
         np.copyto(scene.flags, flags)
     # segmentation colours: segid + 1 in the 24 bits of (r, g, b), 0 where nothing is drawn

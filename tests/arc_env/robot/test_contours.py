@@ -122,3 +122,38 @@ def test_one_render_reads_the_geoms_and_depth_that_two_renders_give(robot, q):
     assert len(np.unique(geoms[geoms >= 0])) > 5  # many geoms, each with its own id
     assert np.array_equal(geoms, want_geoms)
     assert np.array_equal(depth, want_depth)
+
+
+@pytest.mark.parametrize("view", ["whole", "cut by the border", "close"])
+def test_the_contour_read_in_the_robots_window_is_the_whole_images(robot, q, view):
+    """``RobotContours`` reads out only the pixels around the robot's bounding spheres: the same contour as the
+    whole image's depth and mask give (``contour_from_depth`` on a full readout of the same render)."""
+    from arc_env.robot.rendering import render_geoms_and_depth
+    from solver.outlines import contour_from_depth
+
+    T = {"whole": T_VIEW,
+         "cut by the border": _look_at(np.array([1.2, 0.9, 0.6]), np.array([0.3, 0.0, 0.9])),
+         "close": _look_at(np.array([0.35, 0.15, 0.5]), np.array([0.0, 0.0, 0.4]))}[view]
+    camera = CameraIntrinsics(np.array([[520.0, 0, 319.5], [0, 520.0, 179.5], [0, 0, 1]]), np.zeros(5), W, H)
+    contours = RobotContours(robot, camera, stride=1)
+    got = contours(T, q)
+    renderer, data = contours._renderer()  # the same scene as the call above left it, read out whole
+    geoms, depth = render_geoms_and_depth(renderer)
+    T_camera_world = T @ np.linalg.inv(contours.robot.T_world_base)
+    mask = contours._robot_geom[geoms]
+    want = contour_from_depth(np.where(mask, depth, contours._plane_depth(T_camera_world, depth.shape)), mask, T,
+                              contours.K_render, contours.min_step_m, 1)
+    window = contours._window(data, T_camera_world)
+    area = (window[2] - window[0]) * (window[3] - window[1])
+    if view == "close":
+        assert area == W * H  # a bounding sphere reaches the camera: the whole image
+    else:
+        assert area < 0.8 * W * H
+    if view == "cut by the border":
+        assert window[0] == 0 or window[1] == 0 or window[2] == W or window[3] == H
+    assert len(got.points_base) > 200
+    np.testing.assert_allclose(got.points_base, want.points_base, rtol=0, atol=1e-12)
+    assert np.array_equal(got.outward, want.outward)
+    depth_whole, mask_whole = contours.depth_and_mask(T, q)
+    assert np.array_equal(mask_whole, mask)
+    assert np.array_equal(depth_whole[mask], depth[mask])
