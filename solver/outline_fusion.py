@@ -178,7 +178,11 @@ class OutlineFusion:
 class _Cached:
     image: OutlineImage
     contour: ContourPoints | None = None
-    T_rendered: FloatArray | None = None
+    pixels: FloatArray | None = None  # (N, 2): the contour's points projected from the pose it was rendered at
+
+    def render(self, renderer: ContourRenderer, T: FloatArray, intrinsics: CameraIntrinsics) -> None:
+        self.contour = renderer(T, self.image.q)
+        self.pixels = project_base_points(T, self.contour.points_base, intrinsics)[0]
 
 
 @dataclass(frozen=True)
@@ -302,7 +306,7 @@ class OutlineAdjustment:
         step = float("nan")
         for round_ in range(cfg.search_rounds):
             for cached in self._images:  # the contours from the best pose so far
-                cached.contour, cached.T_rendered = self.renderer(best_T, cached.image.q), best_T.copy()
+                cached.render(self.renderer, best_T, self.intrinsics)
             shifted = [_translated(T0, s * u) for s in offsets]
             scores = np.array([self._capped_score(candidate, cap) for candidate in shifted])
             if not np.isfinite(scores).any():
@@ -400,34 +404,36 @@ class OutlineAdjustment:
 
     def _render_where_moved(self, T: FloatArray) -> int:
         """Render the contours the pose T has moved by more than ``rerender_px``; returns how many."""
-        count = 0
-        for cached in self._images:
-            if cached.contour is not None and cached.T_rendered is not None and len(cached.contour.points_base):
-                before, _ = project_base_points(cached.T_rendered, cached.contour.points_base, self.intrinsics)
-                after, _ = project_base_points(T, cached.contour.points_base, self.intrinsics)
-                if np.max(np.linalg.norm(after - before, axis=1)) <= self.config.rerender_px:
-                    continue
-            cached.contour = self.renderer(T, cached.image.q)
-            cached.T_rendered = T.copy()
-            count += 1
-        return count
+        stale = [c.contour is None or c.pixels is None or not len(c.pixels) for c in self._images]
+        kept: list[tuple[int, FloatArray, FloatArray]] = [(i, c.contour.points_base, c.pixels) for i, c in
+                                                          enumerate(self._images) if c.contour is not None
+                                                          and c.pixels is not None and not stale[i]]
+        if kept:  # every rendered contour projected from T at once
+            now, _ = project_base_points(T, np.concatenate([points for _, points, _ in kept]), self.intrinsics)
+            for (i, _, before), after in zip(kept, np.split(now, np.cumsum([len(p) for _, p, _ in kept])[:-1]),
+                                             strict=True):
+                stale[i] = bool(np.max(np.linalg.norm(after - before, axis=1)) > self.config.rerender_px)
+        for cached, render in zip(self._images, stale, strict=True):
+            if render:
+                cached.render(self.renderer, T, self.intrinsics)
+        return int(sum(stale))
 
     def _pairs(self, T: FloatArray) -> tuple[EdgePairs, FloatArray]:
         """Every image's contour points paired with edges at T, and (P,) the group of each pair."""
-        parts, groups = [], []
+        contours: list[ContourPoints] = []
         for cached in self._images:
             assert cached.contour is not None
-            pairs = pair_contour_points(T, [cached.contour], [cached.image.edges], self.intrinsics, self.config.outline)
-            parts.append(pairs)
-            groups.append(np.full(len(pairs.points_base), cached.image.group))
-        pairs = EdgePairs(*(np.concatenate(p) for p in zip(*((q.points_base, q.edge_points, q.normals) for q in parts),
-                                                         strict=True)))
+            contours.append(cached.contour)
+        pairs = pair_contour_points(T, contours, [cached.image.edges for cached in self._images], self.intrinsics,
+                                    self.config.outline)
+        assert pairs.image is not None
+        group_of = np.array([cached.image.group for cached in self._images], dtype=np.float64)
         if len(pairs.points_base) < self.config.outline.min_pairs:
             raise InsufficientMotionsError(
                 f"only {len(pairs.points_base)} contour points lie within {self.config.outline.max_match_px} px of an "
                 f"image edge of their direction (at least {self.config.outline.min_pairs} needed): the estimate is "
                 "too far off, or the outlines are not in the images")
-        return pairs, np.concatenate(groups).astype(np.float64)
+        return pairs, group_of[pairs.image]
 
     def _normal(self, T: FloatArray, pairs: EdgePairs, groups: FloatArray) -> _Normal:
         """The outlines' whitened normal equations at T (Cauchy weights, scale from the residuals)."""

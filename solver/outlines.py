@@ -245,12 +245,15 @@ class EdgePairs:
         normals: (P, 2) float64: the edges' unit normals, turned outward (the contour point's outward side).
         in_front: how many contour points were in front of the camera, paired or not (``pair_contour_points``; 0
             where the pairs were assembled otherwise).
+        image: (P,) int64: the index of the image each pair comes from (``pair_contour_points``' order); None where
+            the pairs were assembled otherwise.
     """
 
     points_base: FloatArray
     edge_points: FloatArray
     normals: FloatArray
     in_front: int = 0
+    image: NDArray[np.int64] | None = None
 
 
 def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoints], edges: Sequence[ImageEdges],
@@ -261,12 +264,19 @@ def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoi
     edge, or whose nearest edge's normal is more than ``config.max_normal_angle_deg`` from their outward
     direction, or behind the camera, are left out.
     """
+    if len(contours) != len(edges):
+        raise InvalidInputError(f"{len(contours)} contours for {len(edges)} edge images")
+    if not contours:
+        return EdgePairs(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)), image=np.zeros(0, np.int64))
     cos_min = np.cos(np.radians(config.max_normal_angle_deg))
-    parts: list[tuple[FloatArray, FloatArray, FloatArray]] = [(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)))]
-    in_front = 0
-    for contour, image in zip(contours, edges, strict=True):
-        pixels, visible = project_base_points(T_camera_base, contour.points_base, intrinsics)
-        in_front += int(visible.sum())
+    parts: list[tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int64]]] = [
+        (np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64))]
+    # every image's points projected at once (one pose, one camera), then paired image by image
+    split = np.cumsum([len(contour.points_base) for contour in contours])[:-1]
+    all_points = np.concatenate([contour.points_base for contour in contours])
+    all_pixels, all_visible = project_base_points(T_camera_base, all_points, intrinsics)
+    for i, (contour, image, pixels, visible) in enumerate(zip(contours, edges, np.split(all_pixels, split),
+                                                              np.split(all_visible, split), strict=True)):
         if len(image.points) == 0:  # an image without edges pairs nothing
             continue
         idx, found = image.nearest(pixels, config.max_match_px)
@@ -274,8 +284,9 @@ def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoi
         along = np.sum(normals * contour.outward, axis=1)
         keep = visible & found & (np.abs(along) >= cos_min)
         parts.append((contour.points_base[keep], image.points[idx[keep]],
-                      normals[keep] * np.sign(along[keep])[:, None]))
-    return EdgePairs(*(np.concatenate(p) for p in zip(*parts, strict=True)), in_front=in_front)
+                      normals[keep] * np.sign(along[keep])[:, None], np.full(int(keep.sum()), i, np.int64)))
+    points, edge_points, normals, index = (np.concatenate(p) for p in zip(*parts, strict=True))
+    return EdgePairs(points, edge_points, normals, in_front=int(all_visible.sum()), image=index)
 
 
 def project_base_points(T_camera_base: FloatArray, points_base: FloatArray, intrinsics: CameraIntrinsics

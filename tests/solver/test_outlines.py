@@ -92,6 +92,24 @@ def test_an_image_without_edges_pairs_nothing(edges):
     assert pair_contour_points(behind, [contour], [edges[0]], CAMERA, OutlineConfig()).in_front == 0
 
 
+def test_pairs_of_several_images_are_each_images_own_in_order(edges):
+    """Pairing every image at once (one projection) gives each image's own pairs, labelled with its index."""
+    T = perturb(T_TRUE, np.array([0.004, -0.002, 0.003, 0.002, -0.003, 0.004]))
+    contours = _model(T)
+    together = pair_contour_points(T, contours, edges, CAMERA, OutlineConfig())
+    alone = [pair_contour_points(T, [c], [e], CAMERA, OutlineConfig()) for c, e in zip(contours, edges, strict=True)]
+    assert len(contours) >= 2 and all(len(a.points_base) > 0 for a in alone)
+    np.testing.assert_array_equal(together.image, np.concatenate([np.full(len(a.points_base), i)
+                                                                  for i, a in enumerate(alone)]))
+    for name in ("points_base", "edge_points", "normals"):
+        np.testing.assert_array_equal(getattr(together, name), np.concatenate([getattr(a, name) for a in alone]))
+    assert together.in_front == sum(a.in_front for a in alone)
+    empty = pair_contour_points(T, [], [], CAMERA, OutlineConfig())
+    assert len(empty.points_base) == 0 and empty.in_front == 0
+    with pytest.raises(InvalidInputError, match="2 contours for 1 edge images"):
+        pair_contour_points(T, contours[:2], edges[:1], CAMERA, OutlineConfig())
+
+
 def test_bad_inputs_are_refused(edges):
     with pytest.raises(InvalidInputError, match="T_init"):
         fit_outline_pose(np.full((4, 4), np.nan), edges, _model, CAMERA)
