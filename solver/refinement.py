@@ -959,18 +959,8 @@ JACKKNIFE_TEST_LEVEL = 0.01
 
 #: The jackknife's largest leverage of one motion along a direction (``motion_jackknife_covariance``): a motion
 #: that alone fixes a direction (leverage 1) would leave it undetermined without it; capped, its shift is taken
-#: as at most 1 / (1 - 0.98) = 50 times its one-step pull. Measured on a captured realistic 1080p xArm 6 episode
-#: (pose 6): its 15th motion (joint 4, 77 kept tracks) carried 0.98 of the information along one direction and was
-#: 5.3 sigma off there; with the cap at 0.9 its shift was taken as 10x its pull, a fifth of what it was, and the
-#: truth's chi-square sat at 25-43 from that motion on (every later update outside the 95 % region; 2.3 without
-#: the motion). At 0.98: 4.6-8.6 with the tracks alone, 2.8-6.6 with the outlines, errors unchanged; a 25-motion
-#: realistic Panda capture's errors unchanged, its first outline updates 0.8 sigma apart.
-JACKKNIFE_MAX_LEVERAGE = 0.98
-
-
-#: ``motion_overdispersion`` counts a motion's direction only below this leverage (its score there shrinks as
-#: 1 - leverage, so the test's terms, divided by l (1 - l), would weigh noise where one motion fixes a direction).
-OVERDISPERSION_MAX_LEVERAGE = 0.9
+#: as 1 / (1 - 0.9) = 10 times its one-step pull.
+JACKKNIFE_MAX_LEVERAGE = 0.9
 
 
 def motion_overdispersion(information: FloatArray, gradient: FloatArray, S: FloatArray,
@@ -980,9 +970,9 @@ def motion_overdispersion(information: FloatArray, gradient: FloatArray, S: Floa
     With independent noise of variance sigma2 (px^2), motion m's score g_m (n,) at the joint optimum has
     covariance sigma2 (H_m - H_m S^-1 H_m); whitened by S^-1/2 that is sigma2 U diag(l (1 - l)) U^T for the
     eigen-decomposition U diag(l) U^T of its leverage P_m = S^-1/2 H_m S^-1/2. Returns Q, the sum over motions
-    and eigen-directions with 0.01 < l < 0.9 (``OVERDISPERSION_MAX_LEVERAGE``) of (U^T S^-1/2 g_m)^2 /
-    (sigma2 l (1 - l)), and the number of those terms: about chi-square with that many degrees of freedom when
-    the noise is independent, far above it when errors are shared by a sweep (its blur, timing or sliding tracks).
+    and eigen-directions with 0.01 < l < 0.9 of (U^T S^-1/2 g_m)^2 / (sigma2 l (1 - l)), and the number of
+    those terms: about chi-square with that many degrees of freedom when the noise is independent, far above
+    it when errors are shared by a sweep (its blur, timing or sliding tracks).
 
     Args:
         information: (M, n, n) each motion's information H_m, px^2 per parameter^2.
@@ -994,7 +984,7 @@ def motion_overdispersion(information: FloatArray, gradient: FloatArray, S: Floa
     if not sigma2 > 0:
         return 0.0, 0
     _, lev, _, u = _whitened_leverages(information, gradient, S)
-    ok = (lev > 0.01) & (lev < OVERDISPERSION_MAX_LEVERAGE)
+    ok = (lev > 0.01) & (lev < JACKKNIFE_MAX_LEVERAGE)
     return float(np.sum(u[ok] ** 2 / (sigma2 * lev[ok] * (1.0 - lev[ok])))), int(ok.sum())
 
 
