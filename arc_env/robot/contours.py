@@ -85,19 +85,15 @@ class RobotContours:
             and (H, W) bool, the robot's pixels.
         """
         T = check_transform(np.asarray(T_camera_base, dtype=np.float64), "T_camera_base")
-        depth_window, mask_window, (u0, v0, u1, v1) = self._depth_and_mask_window(T, q)
-        shape = (self.intrinsics.height, self.intrinsics.width)
-        depth = (self._plane_depth(T @ np.linalg.inv(self.robot.T_world_base), shape).astype(np.float64)
-                 if self.ground else np.full(shape, np.inf))
-        mask = np.zeros(shape, dtype=bool)
-        depth[v0:v1, u0:u1], mask[v0:v1, u0:u1] = depth_window, mask_window
+        depth, mask, _ = self._depth_and_mask_window(T, q, whole=True)
         return depth, mask
 
-    def _depth_and_mask_window(self, T_camera_base: FloatArray, q: FloatArray
+    def _depth_and_mask_window(self, T_camera_base: FloatArray, q: FloatArray, whole: bool = False
                                ) -> tuple[FloatArray, np.ndarray, Window]:
-        """``depth_and_mask`` in the window that holds the robot (``_window``): (h, w) depth, (h, w) mask, window.
+        """``depth_and_mask`` in the robot's window (``_window``; with ``whole``, the image): depth, mask, window.
 
-        Outside the window the robot has no pixel, and the depth is the support plane's (or +inf).
+        Depth (h, w) and mask (h, w) of the window. Outside the window the robot has no pixel, and the depth is the
+        support plane's (or +inf).
         """
         renderer, data = self._renderer()
         data.qpos[self.robot.qpos_adr] = self.robot.check_q(q)
@@ -105,7 +101,7 @@ class RobotContours:
         T_camera_world = T_camera_base @ np.linalg.inv(self.robot.T_world_base)
         renderer.update_scene(data, mujoco.MjvCamera())
         self._place_camera(renderer, T_camera_world)
-        window = self._window(data, T_camera_world)
+        window = (0, 0, self.intrinsics.width, self.intrinsics.height) if whole else self._window(data, T_camera_world)
         geoms, depth = render_geoms_and_depth(renderer, window)
         mask = self._robot_geom[geoms]  # -1 (none) reads the last entry: False
         if not self.ground:
