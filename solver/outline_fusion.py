@@ -9,7 +9,9 @@ honest covariance (below), and combines it with the tracks' by their covariances
 
 Each image keeps the contour its model gave at the pose it was last rendered from, and is rendered again only
 when the pose has moved its contour by more than ``OutlineFusionConfig.rerender_px``: once the estimate settles,
-an update renders only the new motion's images.
+an update renders only the new motion's images. Likewise an image's contour points keep the edges they were paired
+with until the pose moves them by ``OutlineFusionConfig.repair_px`` along those edges' normals: an update then pairs
+the new images alone.
 
 The outlines' covariance must not be the textbook one: thousands of contour points per image, each a pixel from
 its neighbours, share what makes them wrong (the shading of a casting moves its whole edge, a link's model
@@ -97,6 +99,9 @@ class OutlineFusionConfig:
         outline: the pairing of contour points with edges (``OutlineConfig``: distance, angle, Cauchy scale,
             pairings per render, minimum pairs).
         rerender_px: an image's contour is rendered again when the pose has moved it by more than this, pixels.
+        repair_px: an image's contour points keep the edges they were paired with while the pose has moved them by
+            less than this along those edges' normals since, pixels (re-pairing them would find the same edges: the
+            pairing is most of a fuse's time once the estimate settles); 0: every image paired again each time.
         renders: rounds of (render where needed, pair, solve) per fuse.
         gauss_newton_steps: iteratively reweighted Gauss-Newton steps per pairing.
         edge_offset_px: 1-sigma of each of the edges' offsets from the true outline (common, and along the image's
@@ -125,6 +130,7 @@ class OutlineFusionConfig:
 
     outline: OutlineConfig = OutlineConfig()
     rerender_px: float = 1.0
+    repair_px: float = 0.25
     renders: int = 3
     gauss_newton_steps: int = 4
     edge_offset_px: float = 0.3
@@ -138,8 +144,10 @@ class OutlineFusionConfig:
     search_samples: int = 9
 
     def __post_init__(self) -> None:
-        if not (self.rerender_px > 0 and self.edge_offset_px >= 0 and self.max_disagreement_chi2 > 0):
-            raise InvalidInputError("need rerender_px > 0, edge_offset_px >= 0 and max_disagreement_chi2 > 0")
+        if not (self.rerender_px > 0 and self.repair_px >= 0 and self.edge_offset_px >= 0
+                and self.max_disagreement_chi2 > 0):
+            raise InvalidInputError("need rerender_px > 0, repair_px >= 0, edge_offset_px >= 0 and "
+                                    "max_disagreement_chi2 > 0")
         if min(self.renders, self.gauss_newton_steps, self.min_groups, self.min_groups_along, self.search_rounds) < 1:
             raise InvalidInputError("renders, gauss_newton_steps, min_groups, min_groups_along and search_rounds must "
                                     "be >= 1")
@@ -179,10 +187,13 @@ class _Cached:
     image: OutlineImage
     contour: ContourPoints | None = None
     pixels: FloatArray | None = None  # (N, 2): the contour's points projected from the pose it was rendered at
+    pairs: EdgePairs | None = None  # its contour's points paired with its edges (image index 0), None: pair again
+    paired_r: FloatArray | None = None  # (P,) px: their residuals at the pose they were paired at
 
     def render(self, renderer: ContourRenderer, T: FloatArray, intrinsics: CameraIntrinsics) -> None:
         self.contour = renderer(T, self.image.q)
         self.pixels = project_base_points(T, self.contour.points_base, intrinsics)[0]
+        self.pairs = self.paired_r = None
 
 
 @dataclass(frozen=True)
@@ -419,13 +430,45 @@ class OutlineAdjustment:
         return int(sum(stale))
 
     def _pairs(self, T: FloatArray) -> tuple[EdgePairs, FloatArray]:
-        """Every image's contour points paired with edges at T, and (P,) the group of each pair."""
-        contours: list[ContourPoints] = []
+        """Every image's contour points paired with edges at T, and (P,) the group of each pair.
+
+        An image keeps its pairs while T has moved them by less than ``repair_px`` along their normals since they were
+        paired; the others are paired again, all at once.
+        """
+        kept = [c for c in self._images if c.pairs is not None]
+        if kept and self.config.repair_px > 0:
+            joined = _joined([c.pairs for c in kept if c.pairs is not None])
+            r = outline_residuals(T, joined.points_base, joined.edge_points, joined.normals, self.intrinsics)
+            assert joined.image is not None
+            moved = np.zeros(len(kept))
+            np.maximum.at(moved, joined.image, np.abs(r - np.concatenate([c.paired_r for c in kept
+                                                                           if c.paired_r is not None])))
+            for cached, far in zip(kept, moved > self.config.repair_px, strict=True):
+                if far:
+                    cached.pairs = cached.paired_r = None
+        else:
+            for cached in kept:
+                cached.pairs = cached.paired_r = None
+        fresh = [c for c in self._images if c.pairs is None]
+        if fresh:
+            contours: list[ContourPoints] = []
+            for cached in fresh:
+                assert cached.contour is not None
+                contours.append(cached.contour)
+            paired = pair_contour_points(T, contours, [cached.image.edges for cached in fresh], self.intrinsics,
+                                         self.config.outline)
+            assert paired.image is not None
+            r = outline_residuals(T, paired.points_base, paired.edge_points, paired.normals, self.intrinsics)
+            for i, cached in enumerate(fresh):
+                mine = paired.image == i
+                cached.pairs = EdgePairs(paired.points_base[mine], paired.edge_points[mine], paired.normals[mine],
+                                         image=np.zeros(int(mine.sum()), np.int64))
+                cached.paired_r = r[mine]
+        every: list[EdgePairs] = []
         for cached in self._images:
-            assert cached.contour is not None
-            contours.append(cached.contour)
-        pairs = pair_contour_points(T, contours, [cached.image.edges for cached in self._images], self.intrinsics,
-                                    self.config.outline)
+            assert cached.pairs is not None
+            every.append(cached.pairs)
+        pairs = _joined(every)
         assert pairs.image is not None
         group_of = np.array([cached.image.group for cached in self._images], dtype=np.float64)
         if len(pairs.points_base) < self.config.outline.min_pairs:
@@ -473,6 +516,15 @@ def _symmetric(matrix: FloatArray, what: str) -> FloatArray:
     if M.shape != (6, 6) or not np.all(np.isfinite(M)) or not np.allclose(M, M.T, rtol=1e-9, atol=0.0):
         raise InvalidInputError(f"{what} must be a finite symmetric (6, 6) array")
     return M
+
+
+def _joined(parts: list[EdgePairs]) -> EdgePairs:
+    """One image's pairs each (``EdgePairs.image`` all 0) joined, ``image`` the position in ``parts``."""
+    if not parts:
+        return EdgePairs(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)), image=np.zeros(0, np.int64))
+    return EdgePairs(np.concatenate([p.points_base for p in parts]), np.concatenate([p.edge_points for p in parts]),
+                     np.concatenate([p.normals for p in parts]),
+                     image=np.repeat(np.arange(len(parts)), [len(p.points_base) for p in parts]))
 
 
 def _translated(T: FloatArray, shift: FloatArray) -> FloatArray:

@@ -91,6 +91,35 @@ def test_settled_images_are_not_rendered_again(edges):
     assert np.linalg.norm(pose_difference(again.T_camera_base, first.T_camera_base)) < 1e-5
 
 
+def test_settled_images_keep_their_pairs(edges, monkeypatch):
+    """Once the pose settles, only a new image is paired; the pose is the one from pairing every image each time."""
+    import solver.outline_fusion as fusion_module
+
+    paired: list[int] = []
+    pair = fusion_module.pair_contour_points
+
+    def counting(T, contours, *args, **kwargs):
+        paired.append(len(contours))
+        return pair(T, contours, *args, **kwargs)
+
+    monkeypatch.setattr(fusion_module, "pair_contour_points", counting)
+    extra = OutlineImage(edges[0], np.array([0.0]), 6)  # a seventh motion's image: scene 0 again
+    poses = {}
+    for repair_px in (0.25, 0.0):
+        adjustment = _adjustment(edges, replace(UNLIMITED, repair_px=repair_px))
+        first = adjustment.fuse(perturb(T_TRUE, START), VAGUE)
+        adjustment.add(extra)
+        paired.clear()
+        poses[repair_px] = adjustment.fuse(perturb(T_TRUE, START), VAGUE, first.T_camera_base)
+        if repair_px:
+            assert paired and set(paired) == {1}  # the new image alone
+        else:
+            assert paired and set(paired) == {7}
+    d = pose_difference(poses[0.0].T_camera_base, poses[0.25].T_camera_base)
+    assert float(d @ np.linalg.solve(poses[0.0].covariance, d)) < 0.1**2
+    assert np.allclose(poses[0.25].covariance, poses[0.0].covariance, rtol=0.05, atol=0.0)
+
+
 def test_a_prior_too_uncertain_to_pair_by_is_refused(edges):
     """The default reach: 8 px RMS. A 1-sigma of 20 cm moves these contours by far more; 0.1 mm by far less."""
     with pytest.raises(InsufficientMotionsError, match="too uncertain for the outlines"):
