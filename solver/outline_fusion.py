@@ -43,6 +43,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from solver.arrays import FloatArray
 from solver.errors import InsufficientMotionsError, InvalidInputError
@@ -188,12 +189,36 @@ class _Cached:
     contour: ContourPoints | None = None
     pixels: FloatArray | None = None  # (N, 2): the contour's points projected from the pose it was rendered at
     pairs: EdgePairs | None = None  # its contour's points paired with its edges (image index 0), None: pair again
-    paired_r: FloatArray | None = None  # (P,) px: their residuals at the pose they were paired at
+    paired_T: FloatArray | None = None  # (4, 4): the pose they were paired at
+    paired_r: FloatArray | None = None  # (P,) px: their residuals there
+    paired_J: FloatArray | None = None  # (P, 6): the residuals' Jacobian there
 
     def render(self, renderer: ContourRenderer, T: FloatArray, intrinsics: CameraIntrinsics) -> None:
         self.contour = renderer(T, self.image.q)
         self.pixels = project_base_points(T, self.contour.points_base, intrinsics)[0]
-        self.pairs = self.paired_r = None
+        self.forget_pairs()
+
+    def forget_pairs(self) -> None:
+        self.pairs = self.paired_T = self.paired_r = self.paired_J = None
+
+
+@dataclass(frozen=True)
+class _Paired:
+    """Every image's pairs, with their residuals linearized where each image was paired."""
+
+    pairs: EdgePairs  # (P,) pairs; ``image``: the image's index
+    groups: FloatArray  # (P,): the motion of each pair
+    r: FloatArray  # (P,) px: the residuals at the pose their image was paired at
+    J: FloatArray  # (P, 6): their Jacobian there
+    poses: list[FloatArray]  # the poses the images were paired at (each (4, 4))
+    pose_of: NDArray[np.int64]  # (P,): each pair's index into poses
+
+    def residuals(self, T: FloatArray) -> FloatArray:
+        """(P,) px: the residuals at T, to first order in the pose's move from where each image was paired."""
+        if not self.poses:
+            return self.r
+        moves = np.stack([pose_difference(paired_at, T) for paired_at in self.poses])
+        return self.r + np.einsum("pj,pj->p", self.J, moves[self.pose_of])
 
 
 @dataclass(frozen=True)
@@ -351,10 +376,10 @@ class OutlineAdjustment:
             if round_ and not fresh:  # every contour is where it was: the pairing would be the same
                 break
             for _ in range(cfg.outline.associations):
-                pairs, groups = self._pairs(T)
+                paired = self._pairs(T)
                 T_paired = T
                 for _ in range(cfg.gauss_newton_steps):
-                    normal = self._normal(T, pairs, groups)
+                    normal = self._normal(T, paired)
                     if metric is None:  # at the start's first pairing
                         self._check_prior_reach(normal, reach_covariance)
                         metric = P + np.linalg.inv(self._outline_covariance(normal))
@@ -366,8 +391,7 @@ class OutlineAdjustment:
                 moved = pose_difference(T_paired, T)
                 if moved @ metric @ moved < _CONVERGED_SIGMA**2:
                     break
-        pairs, groups = self._pairs(T)
-        normal = self._normal(T, pairs, groups)
+        normal = self._normal(T, self._pairs(T))
         cov_outline = self._outline_covariance(normal)
         information_outline = np.linalg.inv(cov_outline)
         # The outlines' own estimate (relative to the tracks' pose): one Newton step without the prior from the joint
@@ -429,26 +453,23 @@ class OutlineAdjustment:
                 cached.render(self.renderer, T, self.intrinsics)
         return int(sum(stale))
 
-    def _pairs(self, T: FloatArray) -> tuple[EdgePairs, FloatArray]:
-        """Every image's contour points paired with edges at T, and (P,) the group of each pair.
+    def _pairs(self, T: FloatArray) -> _Paired:
+        """Every image's contour points paired with edges, linearized where each image was paired.
 
         An image keeps its pairs while T has moved them by less than ``repair_px`` along their normals since they were
-        paired; the others are paired again, all at once.
+        paired (to first order); the others are paired again at T, all at once.
         """
         kept = [c for c in self._images if c.pairs is not None]
         if kept and self.config.repair_px > 0:
-            joined = _joined([c.pairs for c in kept if c.pairs is not None])
-            r = outline_residuals(T, joined.points_base, joined.edge_points, joined.normals, self.intrinsics)
-            assert joined.image is not None
+            joined = self._joined(kept)
             moved = np.zeros(len(kept))
-            np.maximum.at(moved, joined.image, np.abs(r - np.concatenate([c.paired_r for c in kept
-                                                                           if c.paired_r is not None])))
+            np.maximum.at(moved, joined.pairs.image, np.abs(joined.residuals(T) - joined.r))
             for cached, far in zip(kept, moved > self.config.repair_px, strict=True):
                 if far:
-                    cached.pairs = cached.paired_r = None
+                    cached.forget_pairs()
         else:
             for cached in kept:
-                cached.pairs = cached.paired_r = None
+                cached.forget_pairs()
         fresh = [c for c in self._images if c.pairs is None]
         if fresh:
             contours: list[ContourPoints] = []
@@ -458,29 +479,45 @@ class OutlineAdjustment:
             paired = pair_contour_points(T, contours, [cached.image.edges for cached in fresh], self.intrinsics,
                                          self.config.outline)
             assert paired.image is not None
-            r = outline_residuals(T, paired.points_base, paired.edge_points, paired.normals, self.intrinsics)
+            r, J = outline_residuals_and_jacobian(T, paired, self.intrinsics)
             for i, cached in enumerate(fresh):
                 mine = paired.image == i
                 cached.pairs = EdgePairs(paired.points_base[mine], paired.edge_points[mine], paired.normals[mine],
                                          image=np.zeros(int(mine.sum()), np.int64))
-                cached.paired_r = r[mine]
-        every: list[EdgePairs] = []
-        for cached in self._images:
-            assert cached.pairs is not None
-            every.append(cached.pairs)
-        pairs = _joined(every)
-        assert pairs.image is not None
-        group_of = np.array([cached.image.group for cached in self._images], dtype=np.float64)
-        if len(pairs.points_base) < self.config.outline.min_pairs:
+                cached.paired_T, cached.paired_r, cached.paired_J = T, r[mine], J[mine]
+        every = self._joined(self._images)
+        if len(every.r) < self.config.outline.min_pairs:
             raise InsufficientMotionsError(
-                f"only {len(pairs.points_base)} contour points lie within {self.config.outline.max_match_px} px of an "
+                f"only {len(every.r)} contour points lie within {self.config.outline.max_match_px} px of an "
                 f"image edge of their direction (at least {self.config.outline.min_pairs} needed): the estimate is "
                 "too far off, or the outlines are not in the images")
-        return pairs, group_of[pairs.image]
+        return every
 
-    def _normal(self, T: FloatArray, pairs: EdgePairs, groups: FloatArray) -> _Normal:
+    @staticmethod
+    def _joined(images: list[_Cached]) -> _Paired:
+        """The images' pairs (each must have them) joined; ``image`` and ``pose_of`` index ``images``' order."""
+        parts: list[EdgePairs] = []
+        poses: list[FloatArray] = []
+        pose_index: dict[int, int] = {}
+        pose_of: list[int] = []
+        for cached in images:
+            assert cached.pairs is not None and cached.paired_T is not None
+            parts.append(cached.pairs)
+            pose_of.append(pose_index.setdefault(id(cached.paired_T), len(poses)))
+            if pose_of[-1] == len(poses):
+                poses.append(cached.paired_T)
+        pairs = _joined(parts)
+        assert pairs.image is not None
+        counts = [len(p.points_base) for p in parts]
+        groups = np.repeat(np.array([c.image.group for c in images], dtype=np.float64), counts)
+        return _Paired(pairs, groups,
+                       np.concatenate([c.paired_r for c in images if c.paired_r is not None] or [np.zeros(0)]),
+                       np.concatenate([c.paired_J for c in images if c.paired_J is not None] or [np.zeros((0, 6))]),
+                       poses, np.repeat(np.array(pose_of, dtype=np.int64), counts))
+
+    def _normal(self, T: FloatArray, paired: _Paired) -> _Normal:
         """The outlines' whitened normal equations at T (Cauchy weights, scale from the residuals)."""
-        r, J = outline_residuals_and_jacobian(T, pairs, self.intrinsics)
+        r, J, pairs, groups = paired.residuals(T), paired.J, paired.pairs, paired.groups
         sigma = max(1.4826 * float(np.median(np.abs(r - np.median(r)))), 0.05)
         c = self.config.outline.cauchy_px
         w = 1.0 / (1.0 + (r / c) ** 2) / sigma**2
