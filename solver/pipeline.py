@@ -438,7 +438,7 @@ class Calibrator:
         self._monitor = ConvergenceMonitor(self.config.convergence)
         self._window_motions = 0  # motions taken when an estimate last entered the monitor's window
         self._refined: RefinementResult | None = None
-        self._refined_live: list[int] = []  # the motions behind _refined, in its summaries' order
+        self._refined_live: list[int] = []  # the motions behind _refined, in its summaries' order (if it has them)
         self._inlier_counts: dict[int, int] = {}  # tracks the bundle adjustment kept, per motion
         self._lin_information: dict[int, FloatArray] = {}  # per motion: inverse pose covariance where linearized
         self._since_batch = 0  # increments since every motion was last solved
@@ -710,7 +710,8 @@ class Calibrator:
             self._motions[k].points = refined.points_base[offsets[slot]:offsets[slot + 1]]
             self._inlier_counts[k] = int(counts[slot])
             self._lin_information[k] = np.linalg.inv(refined.covariance)
-        self._refined_live = [live[m.motion] for m in refined.summaries]
+        # a backend without motion summaries (the Ceres one) adjusted every motion given
+        self._refined_live = [live[m.motion] for m in refined.summaries] if refined.summaries else list(live)
         self._since_batch = 0
         self.relinearized += 1
 
