@@ -71,6 +71,7 @@ from scipy.stats import chi2
 
 from arc_env.bench.episodes import (
     EpisodeSpec,
+    add_outline_argument,
     add_runner_arguments,
     commits_used,
     padded_curve,
@@ -236,9 +237,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--beside-clean", action="store_true",
                         help="also run the same poses and seeds clean with the painted robot (tracked only) and "
                         "print both side by side")
-    parser.add_argument("--outline-frames", type=int, default=OUTLINE_FRAMES,
-                        help="images per motion for the outline stage (the robot's outlines adjusted with the "
-                             f"tracks; tracked runs only); default {OUTLINE_FRAMES}; 0: the tracks alone")
+    add_outline_argument(parser, OUTLINE_FRAMES)
     parser.add_argument("--json", type=Path, help="write the figures to this file")
     add_runner_arguments(parser)
     args = parser.parse_args(argv)

@@ -30,6 +30,7 @@ from reproduce_paper import error_plot  # scripts/ is on sys.path when run as a 
 
 from arc_env.bench.episodes import (
     EpisodeSpec,
+    add_outline_argument,
     add_runner_arguments,
     commits_used,
     padded_curve,
@@ -88,11 +89,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--plot", type=Path, default=Path("bench_out/compare_planners.png"),
                         help="PNG of median error vs motions (default bench_out/compare_planners.png)")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
+    add_outline_argument(parser, 0)  # 0: the tracks alone, as the stored comparison
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
     specs = {(name, pose, seed): EpisodeSpec(name, pose, seed, args.motions, args.width, args.height,
                                              realism=args.realism, appearance=args.appearance,
-                                             background=args.background)
+                                             background=args.background, outline_frames=args.outline_frames)
              for pose in range(args.poses) for seed in range(args.seeds) for name in PLANNERS}
     print(f"{args.poses} poses x {args.seeds} seeds, {args.motions} motions, {args.width}x{args.height}")
     print(f"{'planner':>8} {'pose':>4} {'seed':>4} {'@3':>17} {'@6':>17} {'@10':>17} {'final':>17} "

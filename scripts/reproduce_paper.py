@@ -39,6 +39,7 @@ import numpy as np
 from arc_env.bench.episodes import (
     METHODS,
     EpisodeSpec,
+    add_outline_argument,
     add_runner_arguments,
     commits_used,
     padded_curve,
@@ -234,6 +235,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("bench_out/reproduce"), help="directory for PNGs and table")
     parser.add_argument("--quick", action="store_true", help="2 poses x 1 seed, 960x540, 10 motions, 5 IoU configs")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
+    add_outline_argument(parser, 0)  # 0: the tracks alone, as the stored study
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
     if args.quick:
@@ -247,7 +249,8 @@ def main(argv: list[str] | None = None) -> int:
     checkpoints = [k for k in CHECKPOINTS if k <= args.motions]
     specs = {(m, pose, seed): EpisodeSpec(m, pose, seed, args.motions, args.width, args.height,
                                           realism=args.realism, appearance=args.appearance,
-                                          background=args.background)
+                                          background=args.background,
+                                          outline_frames=0 if m == "marker" else args.outline_frames)
              for pose in range(args.poses) for seed in range(args.seeds) for m in methods}
 
     def show(r: dict, from_store: bool) -> None:

@@ -16,7 +16,7 @@ def test_tiny_marker_run_writes_the_figures(script, tmp_path):
     out = tmp_path / "figures.json"
     code = script.main(["--methods", "marker", "--poses", "1", "--seeds", "1", "--motions", "3",
                         "--width", "960", "--height", "540", "--iou-configs", "1", "--out", str(tmp_path),
-                        "--json", str(out)])
+                        "--json", str(out), "--outline-frames", "3"])  # the marker has no outline stage: ignored
     assert code == 0
     figures = json.loads(out.read_text())
     assert list(figures) == ["methods"] and list(figures["methods"]) == ["marker"]
@@ -32,3 +32,10 @@ def test_tiny_marker_run_writes_the_figures(script, tmp_path):
 def test_unknown_method_is_an_error(script):
     with pytest.raises(SystemExit):
         script.main(["--methods", "apriltag"])
+
+
+@pytest.mark.parametrize("frames", ["-1", "three"])
+def test_bad_outline_frames_are_an_error(script, frames, capsys):
+    with pytest.raises(SystemExit):
+        script.main(["--methods", "marker", "--outline-frames", frames])
+    assert "--outline-frames" in capsys.readouterr().err

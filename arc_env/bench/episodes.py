@@ -578,6 +578,22 @@ def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
                         "shared by bench_episode.py, compare_planners.py and reproduce_paper.py)")
 
 
+def add_outline_argument(parser: argparse.ArgumentParser, default: int) -> None:
+    """The study scripts' ``--outline-frames N`` (>= 0), defaulting to ``default``."""
+    def frames(text: str) -> int:
+        try:
+            n = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+        if n < 0:
+            raise argparse.ArgumentTypeError(f"must be >= 0, got {n}")
+        return n
+
+    parser.add_argument("--outline-frames", type=frames, default=default,
+                        help="images per motion for the outline stage (the robot's outlines adjusted with the "
+                             f"tracks; tracked ARC-Calib runs only); default {default}; 0: the tracks alone")
+
+
 def run_from_arguments(specs: Iterable[EpisodeSpec], args: argparse.Namespace,
                        on_record: Callable[[dict[str, Any], bool], None] | None = None
                        ) -> dict[EpisodeSpec, dict[str, Any]]:
