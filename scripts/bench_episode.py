@@ -71,6 +71,7 @@ from scipy.stats import chi2
 
 from arc_env.bench.episodes import (
     EpisodeSpec,
+    EpisodeStore,
     add_outline_argument,
     add_runner_arguments,
     commits_used,
@@ -238,6 +239,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="also run the same poses and seeds clean with the painted robot (tracked only) and "
                         "print both side by side")
     add_outline_argument(parser, OUTLINE_FRAMES)
+    parser.add_argument("--stored-only", action="store_true",
+                        help="run nothing: the figures of the episodes already in --store (a partial table while "
+                             "a run goes on; a cell without stored runs is left out)")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
@@ -248,6 +252,8 @@ def main(argv: list[str] | None = None) -> int:
         sizes = parse_sizes(args.sizes) if args.sizes is not None else [(args.width, args.height)]
     except InvalidInputError as exc:
         parser.error(str(exc))
+    if args.stored_only and args.store is None:
+        parser.error("--stored-only reads the episodes of --store DIR")
     if args.beside_clean and args.realism == "clean":
         parser.error("--beside-clean adds clean painted runs beside --realism realistic; --realism is already clean")
     nested = args.robots is not None or args.sizes is not None or args.beside_clean
@@ -278,15 +284,27 @@ def main(argv: list[str] | None = None) -> int:
               f"{sec['solver']:>6.1f}  {r['commit']}{' (stored)' * from_store}{'  ' + r['note'] if r['note'] else ''}",
               flush=True)
 
-    records = run_from_arguments(specs.values(), args, show)
+    if args.stored_only:
+        store = EpisodeStore(args.store)
+        records = {spec: record for spec in specs.values() if (record := store.get(spec)) is not None}
+        for record in records.values():
+            show(record, True)
+        print(f"{len(records)} of {len(specs)} episodes stored")
+    else:
+        records = run_from_arguments(specs.values(), args, show)
     print()
     print(f"code: {commits_used(records.values())}")
     figures: dict[str, dict[str, dict[str, dict]]] = {}
     for robot in robots:
         for size in sizes:
-            for look in looks:
-                results = {mode: [records[specs[robot, size, look, mode, p, s]]
-                                  for p in range(args.poses) for s in range(args.seeds)] for mode in modes[look]}
+            cell = {look: {mode: [records[key] for p in range(args.poses) for s in range(args.seeds)
+                                  if (key := specs[robot, size, look, mode, p, s]) in records]
+                           for mode in modes[look]} for look in looks}
+            if not all(results["tracked"] for results in cell.values()):  # --stored-only: a cell not run yet
+                print(f"-- {robot} {_size_label(size)}: not every look has stored runs; left out")
+                continue
+            for look, by_mode in cell.items():
+                results = {mode: runs for mode, runs in by_mode.items() if runs}  # --stored-only: no oracle runs yet
                 if nested:
                     print(f"-- {robot} {_size_label(size)} {look[0]}")
                 group = robot_figures(results, checkpoints, args.motions, look, size)

@@ -1,12 +1,15 @@
 """scripts/bench_episode.py: the realism issue's figures from fake records, and the --json layout."""
 
 import json
+from dataclasses import asdict
 
 import numpy as np
 import pytest
 
 from arc_env.bench.episodes import (
     FALSE_CONVERGENCE_SIGMAS,
+    EpisodeSpec,
+    EpisodeStore,
     falsely_converged,
     front_end_axes,
     std_maxima,
@@ -174,6 +177,30 @@ def test_json_layout_flat_without_the_new_options_nested_with_them(script, monke
     printed = capsys.readouterr().out
     assert "| iiwa | 1280x720 | 20 / 20 | 5 / 5 |" in printed  # the side-by-side markdown table
     assert "median @25 <= 1e-03 rad / 1.5 mm FAIL" in printed and "median @25 <= 2e-03 rad / 3 mm PASS" in printed
+
+
+def test_stored_only_reports_the_stored_episodes_and_runs_none(script, monkeypatch, tmp_path, capsys):
+    """A partial store: the Panda's seed-0 runs alone. Nothing runs; the iiwa's cell, with none, is left out."""
+    def never(*args, **kwargs):
+        raise AssertionError("--stored-only ran an episode")
+
+    monkeypatch.setattr(script, "run_from_arguments", never)
+    store = EpisodeStore(tmp_path / "store")
+    argv = ["--robots", "panda,iiwa", "--poses", "2", "--seeds", "2", "--motions", "10", "--realism", "realistic",
+            "--no-oracle", "--store", str(tmp_path / "store")]
+    specs = [EpisodeSpec("random", pose, 0, 10, 1920, 1080, realism="realistic", robot="panda", outline_frames=3)
+             for pose in range(2)]
+    for spec, record in _fake_runner(specs, None).items():
+        store.put({**record, "spec": asdict(spec)})
+    out = tmp_path / "partial.json"
+    assert script.main([*argv, "--stored-only", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "2 of 8 episodes stored" in printed and "iiwa 1920x1080: not every look has stored runs" in printed
+    document = json.loads(out.read_text())["robots"]
+    assert list(document) == ["panda"]
+    assert document["panda"]["1920x1080"]["realistic"]["runs_with_track_counts"] == 2
+    with pytest.raises(SystemExit):
+        script.main(["--stored-only"])  # no --store
 
 
 def test_bad_sizes_and_beside_clean_without_realism_are_refused(script):
