@@ -115,8 +115,11 @@ class OutlineFusionConfig:
             this RMS, pixels (pairing each with its nearest edge would then be a guess). Measured: a realistic 720p
             iiwa episode whose tracks were 164 mm off with a 1-sigma of 170 mm at motion 6 had its outlines paired
             with the wrong edges, 118 mm off with a 1-sigma of 1.8 mm (chi-square 4293), until motion 9.
-        min_groups: fewest motions with images before the outlines are used (the clustered covariance needs
-            several clusters).
+        min_groups: fewest motions with images before the outlines are used.
+        trusted_groups: below this many motions with images the fused covariance is at least the outlines' own
+            (``conservative_covariance``): the tracks' clustered covariance needs several clusters, and from three
+            motions it was too narrow (chi-square of the truth up to 40 over 6 dof where the outlines' own gave
+            0.8-5.9, ``docs/realistic-imaging.md``).
         max_disagreement_chi2: the fused pose is refused when it lies further than this from the tracks' pose
             (Mahalanobis, under the sum of the tracks' and the outlines' covariances; chi-square, 6 dof, 0.999).
         min_groups_along: fewest motions with images for ``fuse`` with a free direction (it serves the first
@@ -137,7 +140,8 @@ class OutlineFusionConfig:
     edge_offset_px: float = 0.3
     floor_px: float = 0.1
     max_prior_px: float = 8.0
-    min_groups: int = 6
+    min_groups: int = 3
+    trusted_groups: int = 6
     max_disagreement_chi2: float = 22.46
     min_groups_along: int = 3
     search_px: float = 32.0
@@ -149,9 +153,10 @@ class OutlineFusionConfig:
                 and self.max_disagreement_chi2 > 0):
             raise InvalidInputError("need rerender_px > 0, repair_px >= 0, edge_offset_px >= 0 and "
                                     "max_disagreement_chi2 > 0")
-        if min(self.renders, self.gauss_newton_steps, self.min_groups, self.min_groups_along, self.search_rounds) < 1:
-            raise InvalidInputError("renders, gauss_newton_steps, min_groups, min_groups_along and search_rounds must "
-                                    "be >= 1")
+        if min(self.renders, self.gauss_newton_steps, self.min_groups, self.min_groups_along, self.search_rounds,
+               self.trusted_groups) < 1:
+            raise InvalidInputError("renders, gauss_newton_steps, min_groups, min_groups_along, search_rounds and "
+                                    "trusted_groups must be >= 1")
         if not (self.search_px > 0 and self.search_samples >= 3):
             raise InvalidInputError("need search_px > 0 and search_samples >= 3")
 
@@ -408,8 +413,11 @@ class OutlineAdjustment:
                 "robot, or other edges lie along its outline")
         cov = np.linalg.inv(P + information_outline)
         cov = 0.5 * (cov + cov.T)
-        return OutlineFusion(perturb(T0, cov @ information_outline @ xi_outline), cov, cov_outline, disagreement,
-                             normal.n_pairs, len(self._images), self.n_groups, normal.sigma_px, rendered)
+        T_fused = perturb(T0, cov @ information_outline @ xi_outline)
+        if self.n_groups < cfg.trusted_groups:  # the tracks' covariance from too few motions: the outlines' a floor
+            cov = conservative_covariance(cov, cov_outline)
+        return OutlineFusion(T_fused, cov, cov_outline, disagreement, normal.n_pairs, len(self._images), self.n_groups,
+                             normal.sigma_px, rendered)
 
     def _capped_score(self, T: FloatArray, cap_px: float) -> float:
         """Mean over every image's contour points in front of the camera of min(d, cap_px)^2, px^2.

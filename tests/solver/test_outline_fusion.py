@@ -120,6 +120,19 @@ def test_settled_images_keep_their_pairs(edges, monkeypatch):
     assert np.allclose(poses[0.25].covariance, poses[0.0].covariance, rtol=0.05, atol=0.0)
 
 
+def test_from_few_motions_the_outlines_bound_the_covariance_below(edges):
+    """Below trusted_groups motions the fused covariance is at least the outlines' own; from there it is less."""
+    groups = [0, 0, 1, 1, 2, 2]  # three motions
+    prior = np.eye(6) * 1e-5**2  # as sure as the outlines (~5 um): the fusion halves their variance
+    fused = {trusted: _adjustment(edges, replace(UNLIMITED, trusted_groups=trusted), groups).fuse(T_TRUE, prior)
+             for trusted in (6, 3)}
+    floor, free = fused[6], fused[3]
+    assert np.linalg.eigvalsh(floor.covariance - floor.outline_covariance).min() > -1e-9 * np.trace(floor.covariance)
+    assert np.linalg.eigvalsh(free.outline_covariance - free.covariance).min() > -1e-9 * np.trace(free.covariance)
+    assert np.trace(floor.covariance) > 1.5 * np.trace(free.covariance)
+    assert np.allclose(floor.T_camera_base, free.T_camera_base)  # the pose is the same
+
+
 def test_a_prior_too_uncertain_to_pair_by_is_refused(edges):
     """The default reach: 8 px RMS. A 1-sigma of 20 cm moves these contours by far more; 0.1 mm by far less."""
     with pytest.raises(InsufficientMotionsError, match="too uncertain for the outlines"):
