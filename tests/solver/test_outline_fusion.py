@@ -133,6 +133,17 @@ def test_from_few_motions_the_outlines_bound_the_covariance_below(edges):
     assert np.allclose(floor.T_camera_base, free.T_camera_base)  # the pose is the same
 
 
+def test_from_few_motions_loosely_fitting_outlines_are_refused(edges):
+    """Below trusted_groups a residual scale over max_early_sigma_px refuses the outlines; from there it does not."""
+    three = [0, 0, 1, 1, 2, 2]
+    prior = np.eye(6) * 1e-4**2
+    assert _adjustment(edges, groups=three).fuse(T_TRUE, prior).sigma_px < 0.5  # noise-free edges fit closely
+    strict = replace(UNLIMITED, max_early_sigma_px=0.01)
+    with pytest.raises(InsufficientMotionsError, match="too loosely"):
+        _adjustment(edges, strict, three).fuse(T_TRUE, prior)
+    assert _adjustment(edges, strict).fuse(T_TRUE, prior).n_groups == 6  # six motions: the scale is not judged
+
+
 def test_a_prior_too_uncertain_to_pair_by_is_refused(edges):
     """The default reach: 8 px RMS. A 1-sigma of 20 cm moves these contours by far more; 0.1 mm by far less."""
     with pytest.raises(InsufficientMotionsError, match="too uncertain for the outlines"):
