@@ -524,7 +524,7 @@ class OutlineAdjustment:
             pose_of.append(pose_index.setdefault(id(cached.paired_T), len(poses)))
             if pose_of[-1] == len(poses):
                 poses.append(cached.paired_T)
-        pairs = _joined(parts)
+        pairs = _concatenated(parts)
         assert pairs.image is not None
         counts = [len(p.points_base) for p in parts]
         groups = np.repeat(np.array([c.image.group for c in images], dtype=np.float64), counts)
@@ -573,7 +573,7 @@ def _symmetric(matrix: FloatArray, what: str) -> FloatArray:
     return M
 
 
-def _joined(parts: list[EdgePairs]) -> EdgePairs:
+def _concatenated(parts: list[EdgePairs]) -> EdgePairs:
     """One image's pairs each (``EdgePairs.image`` all 0) joined, ``image`` the position in ``parts``."""
     if not parts:
         return EdgePairs(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)), image=np.zeros(0, np.int64))
