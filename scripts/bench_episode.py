@@ -72,8 +72,8 @@ from scipy.stats import chi2
 from arc_env.bench.episodes import (
     EpisodeSpec,
     EpisodeStore,
-    add_outline_argument,
     add_runner_arguments,
+    add_study_outline_argument,
     commits_used,
     padded_curve,
     run_from_arguments,
@@ -238,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--beside-clean", action="store_true",
                         help="also run the same poses and seeds clean with the painted robot (tracked only) and "
                         "print both side by side")
-    add_outline_argument(parser, OUTLINE_FRAMES)
+    add_study_outline_argument(parser, OUTLINE_FRAMES)
     parser.add_argument("--stored-only", action="store_true",
                         help="run nothing: the figures of the episodes already in --store (a partial table while "
                              "a run goes on; a cell without stored runs is left out)")

@@ -30,8 +30,8 @@ from reproduce_paper import error_plot  # scripts/ is on sys.path when run as a 
 
 from arc_env.bench.episodes import (
     EpisodeSpec,
-    add_outline_argument,
     add_runner_arguments,
+    add_study_outline_argument,
     commits_used,
     padded_curve,
     run_from_arguments,
@@ -89,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--plot", type=Path, default=Path("bench_out/compare_planners.png"),
                         help="PNG of median error vs motions (default bench_out/compare_planners.png)")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
-    add_outline_argument(parser, 0)  # 0: the tracks alone, as the stored comparison
+    add_study_outline_argument(parser, 0)  # 0: the tracks alone, as the stored comparison
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
     specs = {(name, pose, seed): EpisodeSpec(name, pose, seed, args.motions, args.width, args.height,

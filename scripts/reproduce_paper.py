@@ -39,8 +39,8 @@ import numpy as np
 from arc_env.bench.episodes import (
     METHODS,
     EpisodeSpec,
-    add_outline_argument,
     add_runner_arguments,
+    add_study_outline_argument,
     commits_used,
     padded_curve,
     run_from_arguments,
@@ -235,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("bench_out/reproduce"), help="directory for PNGs and table")
     parser.add_argument("--quick", action="store_true", help="2 poses x 1 seed, 960x540, 10 motions, 5 IoU configs")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
-    add_outline_argument(parser, 0)  # 0: the tracks alone, as the stored study
+    add_study_outline_argument(parser, 0)  # 0: the tracks alone, as the stored study
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
     if args.quick:

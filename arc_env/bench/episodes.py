@@ -578,8 +578,12 @@ def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
                         "shared by bench_episode.py, compare_planners.py and reproduce_paper.py)")
 
 
-def add_outline_argument(parser: argparse.ArgumentParser, default: int) -> None:
-    """The study scripts' ``--outline-frames N`` (>= 0), defaulting to ``default``."""
+def add_study_outline_argument(parser: argparse.ArgumentParser, default: int) -> None:
+    """The study scripts' ``--outline-frames N`` (>= 0), defaulting to ``default``.
+
+    Not ``arc_env.cli.calibrate.add_outline_argument``: the commands' default depends on whether an offscreen GL
+    context can be made, while a study's episodes name their count in their records.
+    """
     def frames(text: str) -> int:
         try:
             n = int(text)
