@@ -9,7 +9,7 @@ from solver.errors import InsufficientMotionsError, InvalidInputError
 from solver.frames import perturb, pose_difference
 from solver.outline_fusion import OutlineAdjustment, OutlineFusionConfig, OutlineImage
 from solver.outlines import ImageEdges, image_edges
-from tests.solver.spheres import CAMERA, T_TRUE, render_spheres, sphere_contour
+from tests.solver.spheres import CAMERA, T_TRUE, project_px, render_spheres, sphere_contour
 
 #: Six motions' images (one each) of three spheres: centre (3,) m in the base frame, radius m.
 _RNG = np.random.default_rng(7)
@@ -76,11 +76,32 @@ def test_the_edge_offsets_are_in_the_covariance(edges, shift):
             adjustment.add(OutlineImage(ImageEdges(image.points + move, image.normals), np.array([float(k)]), k))
         return adjustment.fuse(start, VAGUE)
 
-    honest = fused(replace(UNLIMITED, edge_offset_px=0.3, floor_px=0.0))
-    blind = fused(replace(UNLIMITED, edge_offset_px=0.0, floor_px=0.0))
+    # the shift towards the brighter side not estimated: with one polarity throughout it would take the inward offset
+    honest = fused(replace(UNLIMITED, edge_offset_px=0.3, floor_px=0.0, polarity_offset_px=0.0))
+    blind = fused(replace(UNLIMITED, edge_offset_px=0.0, floor_px=0.0, polarity_offset_px=0.0))
     assert np.linalg.norm(pose_difference(honest.T_camera_base, T_TRUE)[3:]) > TRANS_TOL  # the offset shows
     assert _chi2(honest.T_camera_base, honest.covariance) < CHI2_999
     assert _chi2(blind.T_camera_base, blind.covariance) > CHI2_999  # the textbook covariance does not
+
+
+def test_the_edges_shift_towards_the_brighter_side_is_estimated(edges):
+    """Edges 0.3 px towards the brighter side, half the spheres dark on a bright background: the shift is estimated
+    with the pose and taken out of the residuals; not estimated, it shows as their scatter and moves the pose."""
+    start = perturb(T_TRUE, START)
+    shifted = []
+    for k, image in enumerate(edges):
+        centres = project_px(T_TRUE, np.array([centre for centre, _ in SCENES[k]]))
+        nearest = np.argmin(np.linalg.norm(image.points[:, None] - centres[None], axis=2), axis=1)
+        normals = np.where((nearest % 2 == 1)[:, None], -image.normals, image.normals)  # dark to bright
+        shifted.append(ImageEdges(image.points + 0.3 * normals, normals))
+    config = replace(UNLIMITED, floor_px=0.0)
+    estimated = _adjustment(shifted, config).fuse(start, VAGUE)
+    ignored = _adjustment(shifted, replace(config, polarity_offset_px=0.0)).fuse(start, VAGUE)
+    assert estimated.polarity_offset_px == pytest.approx(0.3, abs=0.03)
+    assert ignored.polarity_offset_px == 0.0
+    assert np.linalg.norm(pose_difference(estimated.T_camera_base, T_TRUE)[3:]) < TRANS_TOL
+    assert _chi2(estimated.T_camera_base, estimated.covariance) < CHI2_999
+    assert estimated.sigma_px < 0.7 * ignored.sigma_px
 
 
 def test_settled_images_are_not_rendered_again(edges):
