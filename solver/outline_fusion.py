@@ -15,7 +15,7 @@ the new images alone.
 
 The outlines' covariance must not be the textbook one: thousands of contour points per image, each a pixel from
 its neighbours, share what makes them wrong (the shading of a casting moves its whole edge, a link's model
-differs from the part). Three guards:
+differs from the part). What guards it:
 
 - the residuals' scatter per motion (a cluster: its images share the links' shading and the model's errors)
   replaces the model's covariance where it is larger (a clustered sandwich, ``conservative_covariance``);
@@ -572,9 +572,9 @@ class OutlineAdjustment:
         J_reduced = J
         if s is not None:
             q = J.T @ (w * s)
-            depth = float((w * s) @ s) + prior_px**-2
-            information = information - np.outer(q, q) / depth
-            J_reduced = J - np.outer(s, q / depth)
+            offset_information = float((w * s) @ s) + prior_px**-2
+            information = information - np.outer(q, q) / offset_information
+            J_reduced = J - np.outer(s, q / offset_information)
         per_pair = J_reduced * (w * rho)[:, None]
         labels, index = np.unique(groups, return_inverse=True)
         scores = np.zeros((len(labels), 6))
