@@ -31,7 +31,7 @@ differs from the part). What guards it:
 - the edges' shift towards the brighter side (``OutlineFusionConfig.polarity_offset_px``) is estimated with the pose
   and eliminated (its Schur complement): where a casting darkens towards its outline, the image's edge lies a
   fraction of a pixel off it, out where the background is brighter and in where the robot is. Measured on captured
-  realistic episodes (Sobel's edges): the estimate 0.25-0.52 px, and the error after 8-25 motions 0.75 -> 0.49 mm
+  realistic episodes (Sobel's edges): the estimate 0.11-0.52 px, and the error after 8-25 motions 0.75 -> 0.49 mm
   median over ten runs (a far 720p Panda view 2.87 -> 1.60 mm, 1-sigma 3.44 -> 2.80 mm);
 - a floor (``OutlineFusionConfig.floor_px``): the outlines fix the pose no better than to a 0.1 px RMS displacement
   of their contour points, in any direction. Measured on two episodes, outline-only chi-square of the truth
@@ -114,10 +114,8 @@ class OutlineFusionConfig:
             x and y with the outward normal), pixels: consider parameters of the covariance.
         polarity_offset_px: 1-sigma of the prior of the edges' shift from the outline towards the brighter side,
             pixels, estimated with the pose in every fuse (0: not estimated). A surface's shading next to its
-            outline moves the image's edge: measured at the true pose on realistic Panda, iiwa and xArm 6 frames,
-            +0.07..+0.30 px outward where the background was brighter and -0.08..-0.16 px inward where the robot
-            was (``image_edges``' differences; ``docs/realistic-imaging.md``). Edges of both kinds in one image
-            separate it from the pose; a common offset alone is the depth's (``edge_offset_px``).
+            outline moves the image's edge (measured: ``solver.outlines.image_edges``). Edges of both kinds in one
+            image separate it from the pose; a common offset alone is the depth's (``edge_offset_px``).
         floor_px: the outlines are trusted to fix the pose no better than to this RMS displacement of their contour
             points, pixels: a covariance floor (this squared times the inverse of J^T W J / sum W) for what no
             offset above describes (the model's small differences from the robot's surfaces, the contours'
@@ -561,18 +559,18 @@ class OutlineAdjustment:
         prior_px = self.config.polarity_offset_px
         s = pairs.polarity if prior_px > 0 and pairs.polarity is not None else None
         c = self.config.outline.cauchy_px
-        offset, rho = 0.0, r
+        offset, offset_information, rho = 0.0, 0.0, r
         for _ in range(1 if s is None else 2):  # weights from the residuals, the offset, the weights again
             sigma = max(1.4826 * float(np.median(np.abs(rho - np.median(rho)))), 0.05)
             w = 1.0 / (1.0 + (rho / c) ** 2) / sigma**2
             if s is not None:
-                offset = -float((w * s) @ r) / (float((w * s) @ s) + prior_px**-2)
+                offset_information = float((w * s) @ s) + prior_px**-2
+                offset = -float((w * s) @ r) / offset_information
                 rho = r + offset * s
         information = J.T @ (w[:, None] * J)
         J_reduced = J
         if s is not None:
             q = J.T @ (w * s)
-            offset_information = float((w * s) @ s) + prior_px**-2
             information = information - np.outer(q, q) / offset_information
             J_reduced = J - np.outer(s, q / offset_information)
         per_pair = J_reduced * (w * rho)[:, None]

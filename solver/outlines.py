@@ -83,8 +83,8 @@ def image_edges(grey: ImageArray, low: float = 15.0, high: float = 40.0, sigma_p
     of neighbours, not Sobel's magnitude, whose three-pixel reach lets the shading of a surface next to its
     outline (a casting darkens where it turns away from the light) pull the peak towards the brighter side:
     measured at the true pose on realistic Panda, iiwa and xArm 6 frames, the contour-to-edge offset was
-    +0.17..+0.48 px (brighter background) / -0.10..-0.27 px (brighter robot) with Sobel's peak, and
-    +0.07..+0.28 / -0.08..-0.16 px with the differences' (their scatter 25-50 % smaller; ``docs/realistic-imaging.md``).
+    +0.17..+0.48 px (brighter background) / -0.10..-0.39 px (brighter robot) with Sobel's peak, and
+    +0.07..+0.30 / -0.08..-0.24 px with the differences' (their scatter 25-50 % smaller; ``docs/realistic-imaging.md``).
 
     Args:
         grey: (H, W) uint8 image.
