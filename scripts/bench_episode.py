@@ -12,6 +12,10 @@ speckle falls below a pixel and too few corners survive to calibrate in 10 motio
 realistic robot surface; ``--appearance`` picks the surface (``arc_env.sim.imaging``).
 ``--store DIR`` keeps every finished episode (``arc_env.bench.episodes``) and reuses it, so a long run can be
 interrupted and resumed; ``--workers N`` runs N episodes at once (one renderer thread each).
+``--keep-captures`` also keeps each tracked episode's calibrator inputs in the store (``arc_env.bench.capture``:
+its tracks and outline frames), and ``--replay-from DIR --store NEW`` then rescores such a store with the solver
+of this checkout, in seconds per episode instead of minutes (same frames and motions; records marked
+``replayed_from``).
 ``--robots panda,iiwa,xarm6`` runs the benchmark on each named robot of ``arc_env.robot.library`` in turn
 (the camera poses scaled to each arm, ``arc_env.bench.poses.benchmark_view``); ``--sizes
 1920x1080,1280x720`` at each image size (default: ``--width`` x ``--height``); ``--beside-clean`` runs the

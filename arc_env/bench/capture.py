@@ -1,32 +1,79 @@
 """What a benchmark episode's calibrator was given, captured once and replayed through the solver alone.
 
-Rendering a realistic 1080p episode takes minutes per motion; the solver's part of it takes seconds. ``capture_episode``
-runs a benchmark episode (``arc_env.bench.episodes``' scenes, camera poses and random planner) and keeps every
-``Calibrator.add_motion`` call's arguments, the camera, the calibrator's settings, the robot and the true pose;
-``replay`` feeds them to a fresh ``Calibrator`` of the code as it is now (with the robot's outlines rendered from its
-model, as ``calibrate`` does) and returns the state after each motion, so a change of the solver is measured on the
-same tracks and images in a minute. Captures are pickles: load only those you made.
+Rendering a realistic 1080p episode takes minutes per motion; the solver's part of it takes seconds. A capture keeps
+every ``Calibrator.add_motion`` call's arguments of a benchmark episode (``arc_env.bench.episodes``' scenes, camera
+poses and planners) -- the tracks, and the outline stage's frames as grey images (PNG), so that the edges too are
+found again by the code as it is now -- with the camera, the calibrator's settings, the robot and the true pose.
+``replay`` feeds them to a fresh ``Calibrator`` (with the robot's outlines rendered from its model, as ``calibrate``
+does) and returns the state after each motion; ``rescore`` turns that into the episode's record as the solver of
+this checkout would have written it. So a change of the solver is measured on the same frames in a minute per
+episode instead of ten. ``capture_episode`` runs one episode for its capture; ``bench_episode.py --keep-captures``
+keeps one beside every record it stores. Captures are pickles: load only those you made.
 """
 
 from __future__ import annotations
 
+import copy
 import pickle
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
-from arc_env.bench.episodes import EpisodeSpec, episode_planner, make_env
+from arc_env.bench.episodes import (
+    EpisodeSpec,
+    bench_calibrator_config,
+    code_version,
+    note_calibrator,
+    note_state,
+    run_arc_episode,
+)
 from arc_env.robot.contours import RobotContours
 from arc_env.robot.exports import write_files_atomic
 from arc_env.robot.model import RobotModel, RobotSource
-from solver.arrays import FloatArray
-from solver.errors import ArcCalibError, InvalidInputError
+from arc_env.robot.session import outline_image
+from solver.arrays import FloatArray, ImageArray
+from solver.errors import InvalidInputError
 from solver.observations import CameraIntrinsics
+from solver.outline_fusion import OutlineImage
 from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig
 
-__all__ = ["Capture", "capture_episode", "load_capture", "replay", "save_capture"]
+__all__ = ["CallRecorder", "Capture", "CapturedOutline", "capture_episode", "load_capture", "replay", "rescore",
+           "save_capture"]
+
+
+@dataclass(frozen=True)
+class CapturedOutline:
+    """An outline-stage image as captured: the grey frame, its edges found again on replay (``image``).
+
+    Attributes:
+        png: the grey frame (H, W) uint8, PNG-encoded (lossless).
+        q: (n,) rad, the arm's configuration in it.
+        group: the ``OutlineImage.group`` it was given.
+    """
+
+    png: bytes
+    q: FloatArray
+    group: int
+
+    @classmethod
+    def of(cls, grey: ImageArray, image: OutlineImage) -> CapturedOutline:
+        """The capture of ``image``, made from the grey frame (H, W) uint8 ``grey``."""
+        ok, buffer = cv2.imencode(".png", np.ascontiguousarray(grey))
+        if not ok:
+            raise InvalidInputError("a grey frame could not be PNG-encoded for the capture")
+        return cls(buffer.tobytes(), np.array(image.q, dtype=np.float64), int(image.group))
+
+    def image(self) -> OutlineImage:
+        """The outline stage's image of the frame, its edges found by the code as it is now."""
+        grey = cv2.imdecode(np.frombuffer(self.png, np.uint8), cv2.IMREAD_GRAYSCALE)
+        if grey is None:
+            raise InvalidInputError("a captured outline frame does not decode")
+        found = outline_image(grey, self.q)
+        return OutlineImage(found.edges, found.q, self.group)
 
 
 @dataclass(frozen=True)
@@ -35,7 +82,8 @@ class Capture:
 
     Attributes:
         spec: the episode.
-        calls: per accepted motion, ``Calibrator.add_motion``'s (observation, update, outline images).
+        calls: per accepted motion, ``Calibrator.add_motion``'s (observation, update, outline images); the
+            images are ``CapturedOutline`` (``OutlineImage`` in captures made before the grey frames were kept).
         intrinsics: the camera.
         config: the calibrator's settings.
         robot: the robot's model source.
@@ -55,65 +103,137 @@ class Capture:
     estimates: tuple[FloatArray | None, ...]
 
 
+class CallRecorder:
+    """Keeps what a running benchmark env's calibrator is given, for a ``Capture``.
+
+    Wraps the env's ``session.outline_images`` (to keep each outline image's grey frame) and its calibrator's
+    ``add_motion`` (to keep the call and the estimate after it). Attach after the env's last ``reset``.
+
+    Args:
+        env: the benchmark's ``ArcCalibEnv`` (``arc_env.bench.episodes.make_env``).
+    """
+
+    def __init__(self, env: Any) -> None:
+        session = env.session
+        self._env = env
+        self._calls: list[tuple[Any, bool, tuple[Any, ...]]] = []
+        self._estimates: list[FloatArray | None] = []
+        self._greys: dict[int, tuple[OutlineImage, CapturedOutline]] = {}
+        calibrator = session.calibrator
+        add_motion = calibrator.add_motion
+
+        def images_spy(q_start: FloatArray, joint: int, deltas: FloatArray, frames: Any) -> list[OutlineImage]:
+            images = []
+            for grey, q in session.outline_greys(q_start, joint, deltas, frames):
+                image = outline_image(grey, q)
+                self._greys[id(image)] = (image, CapturedOutline.of(grey, image))
+                images.append(image)
+            return images
+
+        def add_motion_spy(observation: Any, update: bool = True, outlines: Any = ()) -> Any:
+            kept = []
+            for image in outlines:
+                held = self._greys.pop(id(image), None)
+                kept.append(held[1] if held is not None and held[0] is image else image)
+            self._calls.append((observation, update, tuple(kept)))
+            report = add_motion(observation, update, outlines)
+            T = calibrator.state.T_camera_base
+            self._estimates.append(None if T is None else np.array(T, dtype=np.float64))
+            return report
+
+        session.outline_images = images_spy
+        calibrator.add_motion = add_motion_spy
+
+    def capture(self, spec: EpisodeSpec) -> Capture:
+        """What has been kept so far, as ``spec``'s capture."""
+        session = self._env.session
+        return Capture(spec, tuple(self._calls), session.intrinsics, session.calibrator.config, session.robot.source,
+                       np.asarray(self._env.T_camera_base_true, dtype=np.float64).copy(), spec.outline_frames,
+                       tuple(self._estimates))
+
+
 def capture_episode(spec: EpisodeSpec) -> Capture:
     """Run ``spec``'s episode (random or informed planner, as the benchmark) and keep its calibrator's inputs."""
     if spec.method not in ("random", "informed") or spec.oracle:
         raise InvalidInputError(f"a capture needs a tracked random or informed episode, got {spec}")
-    calls: list[tuple[Any, bool, tuple[Any, ...]]] = []
-    estimates: list[FloatArray | None] = []
-    env, obs = make_env(spec)
-    try:
-        calibrator = env.session.calibrator
-        original = calibrator.add_motion
+    kept: list[Capture] = []
+    run_arc_episode(spec, kept)
+    return kept[0]
 
-        def spy(observation: Any, update: bool = True, outlines: Any = ()) -> Any:
-            calls.append((observation, update, tuple(outlines)))
-            report = original(observation, update, outlines)
-            T = calibrator.state.T_camera_base
-            estimates.append(None if T is None else np.array(T, dtype=np.float64))
-            return report
 
-        calibrator.add_motion = spy  # type: ignore[method-assign]
-        planner = episode_planner(env, spec)
-        done = 0
-        while done < spec.motions:
-            try:
-                action = planner.plan(obs)
-            except ArcCalibError:
-                break
-            obs, _, _, truncated, info = env.step(action)
-            if not info["refused"]:
-                done += 1
-            elif truncated:
-                break
-        return Capture(spec, tuple(calls), env.session.intrinsics, calibrator.config, env.session.robot.source,
-                       np.asarray(env.T_camera_base_true, dtype=np.float64).copy(), spec.outline_frames,
-                       tuple(estimates))
-    finally:
-        env.close()
+def _calibrator(capture: Capture, config: CalibratorConfig | None) -> Calibrator:
+    robot = RobotModel.load(capture.robot)
+    contours = RobotContours(robot, capture.intrinsics) if capture.outline_frames else None
+    return Calibrator(capture.intrinsics, robot.axis_and_point, config or capture.config, contours=contours)
+
+
+def _outlines(outlines: tuple[Any, ...]) -> list[OutlineImage]:
+    return [o.image() if isinstance(o, CapturedOutline) else o for o in outlines]
 
 
 def replay(capture: Capture, config: CalibratorConfig | None = None) -> list[CalibrationState]:
     """The states of a fresh ``Calibrator`` (``config``, default the captured one) fed the captured calls in turn."""
-    robot = RobotModel.load(capture.robot)
-    contours = RobotContours(robot, capture.intrinsics) if capture.outline_frames else None
-    calibrator = Calibrator(capture.intrinsics, robot.axis_and_point, config or capture.config, contours=contours)
+    calibrator = _calibrator(capture, config)
     states = []
     for observation, update, outlines in capture.calls:
-        calibrator.add_motion(observation, update, outlines)
+        calibrator.add_motion(observation, update, _outlines(outlines))
         states.append(calibrator.state)
     return states
 
 
+def rescore(record: dict[str, Any], capture: Capture) -> dict[str, Any]:
+    """``record``, an episode's stored record, as the solver of this checkout would have written it from ``capture``.
+
+    The captured calls are replayed through a fresh calibrator with the benchmark's settings of today
+    (``bench_calibrator_config``) and the solver's fields (``arc_env.bench.episodes.note_state`` and
+    ``note_calibrator``) are computed again from its states; the
+    tracks, frames, planning and rendering are the episode's (its frames are not rendered again, its motions are
+    the ones it made). ``commit`` becomes this checkout's, ``seconds`` gets the replay's solver and report time,
+    and ``replayed_from`` keeps the original's ``commit`` and ``seconds``.
+
+    Raises:
+        InvalidInputError: the capture is of another episode, or holds a different number of motions than the
+            record (an episode whose motions did not all reach the calibrator).
+    """
+    spec = EpisodeSpec(**record["spec"])
+    if capture.spec != spec:
+        raise InvalidInputError(f"the capture is of {capture.spec.key}, the record of {spec.key}")
+    if len(capture.calls) != len(record["curve"]):
+        raise InvalidInputError(f"{spec.key}: the capture holds {len(capture.calls)} motions, the record "
+                                f"{len(record['curve'])}")
+    out = copy.deepcopy(record)
+    for name in ("curve", "std_curve", "chi2_curve", "error_curve", "covariance_curve", "outline_curve"):
+        out[name] = []
+    out.update(false_convergence=0, outline_note="", converged_at=None, T_camera_base=None)
+    calibrator = _calibrator(capture, bench_calibrator_config())
+    started = time.perf_counter()
+    for observation, update, outlines in capture.calls:
+        calibrator.add_motion(observation, update, _outlines(outlines))
+        note_state(out, calibrator.state, capture.T_true)
+    note_calibrator(out, calibrator)
+    solver = time.perf_counter() - started
+    original = dict(record.get("seconds", {}))
+    seconds = dict(original)
+    seconds["report"] = float(calibrator.report_seconds)
+    seconds["solver"] = solver - seconds["report"]
+    seconds["total"] = original.get("total", 0.0) - original.get("solver", 0.0) - original.get("report", 0.0) + solver
+    out.update(commit=code_version(), seconds=seconds,
+               replayed_from={"commit": record.get("commit", "unknown"), "seconds": original})
+    return out
+
+
 def save_capture(capture: Capture, path: Path) -> None:
     """Write a capture (a pickle) atomically."""
-    write_files_atomic({Path(path): pickle.dumps(capture)})
+    write_files_atomic({Path(path): pickle.dumps(capture, protocol=pickle.HIGHEST_PROTOCOL)})
 
 
 def load_capture(path: Path) -> Capture:
     """Read a capture written by ``save_capture`` (a pickle: only your own)."""
-    with open(path, "rb") as f:
-        capture = pickle.load(f)  # noqa: S301  (the project's own files)
+    try:
+        with open(path, "rb") as f:
+            capture = pickle.load(f)  # noqa: S301  (the project's own files)
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError) as exc:
+        raise InvalidInputError(f"{path}: not a readable capture ({exc})") from exc
     if not isinstance(capture, Capture):
         raise InvalidInputError(f"{path}: not a capture")
     return capture

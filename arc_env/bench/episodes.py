@@ -38,7 +38,9 @@ A record (``dict``):
   without one: together they say which direction a miss of the 95 % region lies in;
 * ``false_convergence``: executed motions after which the state said it had converged while its true
   error was over 3 times its reported 1-sigma (:func:`falsely_converged`: rotation error > 3 x the norm
-  of the three rotation 1-sigmas, or translation error > 3 x the norm of the three translation ones).
+  of the three rotation 1-sigmas, or translation error > 3 x the norm of the three translation ones);
+* ``replayed_from`` (only in a record replayed from a capture, ``arc_env.bench.capture.rescore``): the original
+  record's ``commit`` and ``seconds``; the solver's fields and times are then the replay's, the rest the original's.
 
 Records stored before a field existed lack it; the study scripts leave such records out of that figure.
 """
@@ -68,8 +70,8 @@ from arc_env.sim.background import BACKGROUNDS
 from arc_env.sim.imaging import APPEARANCES, REALISMS, realism_settings
 from solver.arrays import FloatArray
 from solver.errors import ArcCalibError, InvalidInputError
-from solver.frames import pose_difference
-from solver.pipeline import CalibrationState, CalibratorConfig, MotionReport
+from solver.frames import pose_difference, pose_errors
+from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig, MotionReport
 
 #: Selection methods an episode can use: ARC-Calib with either planner, or the marker baseline.
 METHODS = ("random", "informed", "marker")
@@ -227,11 +229,26 @@ def truth_chi2(state: CalibrationState, T_true: FloatArray) -> float | None:
     return float(z @ z)
 
 
-def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
-    """Run one episode and return its record (see the module doc)."""
+def run_episode(spec: EpisodeSpec, capture_to: Path | None = None) -> dict[str, Any]:
+    """Run one episode and return its record (see the module doc).
+
+    With ``capture_to``, a tracked ARC-Calib episode also writes its capture there (``arc_env.bench.capture``).
+    """
     if spec.method == "marker":
         return _run_marker(spec)
-    return _run_arc(spec)
+    if capture_to is None or not capturable(spec):
+        return run_arc_episode(spec)
+    captures: list[Any] = []
+    record = run_arc_episode(spec, captures)
+    from arc_env.bench.capture import save_capture  # (it imports this module)
+
+    save_capture(captures[0], capture_to)
+    return record
+
+
+def capturable(spec: EpisodeSpec) -> bool:
+    """Whether ``spec``'s episode has a calibrator's inputs to capture: tracked ARC-Calib (not oracle, not marker)."""
+    return spec.method in ("random", "informed") and not spec.oracle
 
 
 def make_env(spec: EpisodeSpec, board: bool = False):  # noqa: ANN202  (ArcCalibEnv; imported lazily)
@@ -248,9 +265,7 @@ def make_env(spec: EpisodeSpec, board: bool = False):  # noqa: ANN202  (ArcCalib
                                          **realism_settings(spec.realism, spec.appearance)),
                        max_motions=spec.motions, oracle_keypoints=spec.oracle, terminate_on_convergence=False,
                        outline_frames=spec.outline_frames,
-                       # the paper's conics on every motion, so ``axes_conics`` counts them all (same estimate;
-                       # the solver's time includes them)
-                       calibrator=CalibratorConfig(conics_always=True))
+                       calibrator=bench_calibrator_config())
     env = ArcCalibEnv(config)
     target, scale = benchmark_view(env.scene.robot)
     obs, _ = env.reset(seed=spec.rng_seed,
@@ -267,7 +282,51 @@ def episode_planner(env: Any, spec: EpisodeSpec) -> Any:  # (ArcCalibEnv) -> Pla
     return planner_cls(env.session, np.random.default_rng(spec.rng_seed))
 
 
-def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
+def bench_calibrator_config() -> CalibratorConfig:
+    """The benchmark's calibrator settings: the defaults, with the paper's conics on every motion.
+
+    ``conics_always``: so ``axes_conics`` counts them on every motion (the estimate is the same; the solver's time
+    for them is reported apart, as "report").
+    """
+    return CalibratorConfig(conics_always=True)
+
+
+def note_state(record: dict[str, Any], state: CalibrationState, T_true: FloatArray) -> None:
+    """Add the calibration ``state`` after an episode's next motion to ``record``'s per-motion solver fields.
+
+    ``curve`` (true errors), ``std_curve``, ``chi2_curve``, ``error_curve``, ``covariance_curve``,
+    ``false_convergence``, ``outline_curve`` and ``outline_note``, ``converged_at`` and ``T_camera_base``; T_true
+    (4, 4) is the true pose.
+    """
+    rot, trans = (None, None) if state.T_camera_base is None else pose_errors(state.T_camera_base, T_true)
+    record["curve"].append(_error_pair(rot, trans))
+    record["std_curve"].append(std_maxima(state.std))
+    record["chi2_curve"].append(truth_chi2(state, T_true))
+    record["error_curve"].append(None if state.T_camera_base is None else
+                                 pose_difference(state.T_camera_base, T_true).tolist())
+    record["covariance_curve"].append(None if state.covariance is None else
+                                      np.asarray(state.covariance, dtype=np.float64).tolist())
+    record["false_convergence"] += falsely_converged(state, rot, trans)
+    record["outline_curve"].append(state.outline is not None)
+    record["outline_note"] = state.outline_note
+    if state.converged and record["converged_at"] is None:
+        record["converged_at"] = len(record["curve"])
+    if state.T_camera_base is not None:
+        record["T_camera_base"] = np.asarray(state.T_camera_base, dtype=np.float64).tolist()
+
+
+def note_calibrator(record: dict[str, Any], calibrator: Calibrator) -> None:
+    """Add an episode's end of ``calibrator`` to ``record``: ``axes``, ``axes_conics``, ``axes_rigid``, ``usable``."""
+    record["axes"] = sum(calibrator.motion_geometry(i) is not None for i in range(len(calibrator.reports)))
+    record["axes_conics"], record["axes_rigid"] = front_end_axes(calibrator.reports)
+    record["usable"] = not state_unusable_reason(calibrator.state, calibrator.state.n_accepted, UsableCriteria())
+
+
+def run_arc_episode(spec: EpisodeSpec, captures: list[Any] | None = None) -> dict[str, Any]:
+    """Run an ARC-Calib episode and return its record; with a list ``captures``, append its ``Capture`` to it.
+
+    (``arc_env.bench.capture``: the calibrator's inputs, to replay through another solver.)
+    """
     started = time.perf_counter()
     # "report": the solver's time on the conic front end for the benchmark's report alone (``conics_always``),
     # moved out of "solver", which is then what the default settings spend
@@ -280,6 +339,11 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
                               "outline_note": ""}
     env, obs = make_env(spec)
     try:
+        recorder = None
+        if captures is not None:
+            from arc_env.bench.capture import CallRecorder  # (it imports this module)
+
+            recorder = CallRecorder(env)
         planner = episode_planner(env, spec)
         while len(record["curve"]) < spec.motions:
             t0 = time.perf_counter()
@@ -311,28 +375,14 @@ def _run_arc(spec: EpisodeSpec) -> dict[str, Any]:
             free = free and all(session.checker.path_free(a, b, RECHECK_STEP_M)[0]
                                 for a, b in zip(path[:-1], path[1:], strict=True))
             record["in_collision"] += int(not free)
-            record["curve"].append(_error_pair(info["rot_error_rad"], info["trans_error_m"]))
             record["tracks"].append(int(info["motion"]["n_tracks"]))
             record["full_tracks"].append(int(info["motion"]["n_full_tracks"]))
-            state = session.calibrator.state
-            record["std_curve"].append(std_maxima(state.std))
-            record["chi2_curve"].append(truth_chi2(state, env.T_camera_base_true))
-            record["error_curve"].append(None if state.T_camera_base is None else
-                                         pose_difference(state.T_camera_base, env.T_camera_base_true).tolist())
-            record["covariance_curve"].append(None if state.covariance is None else
-                                              np.asarray(state.covariance, dtype=np.float64).tolist())
-            record["false_convergence"] += falsely_converged(state, info["rot_error_rad"], info["trans_error_m"])
-            record["outline_curve"].append(state.outline is not None)
-            record["outline_note"] = state.outline_note
-            if obs["converged"] and record["converged_at"] is None:
-                record["converged_at"] = len(record["curve"])
-            if info["T_camera_base"] is not None:
-                record["T_camera_base"] = np.asarray(info["T_camera_base"]).tolist()
+            note_state(record, session.calibrator.state, env.T_camera_base_true)
         calibrator = env.session.calibrator
         assert calibrator is not None
-        record["axes"] = sum(calibrator.motion_geometry(i) is not None for i in range(len(calibrator.reports)))
-        record["axes_conics"], record["axes_rigid"] = front_end_axes(calibrator.reports)
-        record["usable"] = not state_unusable_reason(calibrator.state, calibrator.state.n_accepted, UsableCriteria())
+        note_calibrator(record, calibrator)
+        if recorder is not None and captures is not None:
+            captures.append(recorder.capture(spec))
     finally:
         env.close()
     seconds["planning"] = float(sum(record["planning"]))
@@ -408,6 +458,10 @@ class EpisodeStore:
                     "background": "floor"}
         return record if {**defaults, **record["spec"]} == asdict(spec) else None
 
+    def capture_path(self, spec: EpisodeSpec) -> Path:
+        """Where ``spec``'s capture lives (``arc_env.bench.capture``; kept with ``--keep-captures``)."""
+        return self.root / "captures" / f"{spec.key}.pkl"
+
     def put(self, record: dict[str, Any]) -> None:
         """Store a record (atomically: a temporary file renamed into place)."""
         write_files_atomic({self.path(EpisodeSpec(**record["spec"])): json.dumps(record)})
@@ -449,9 +503,27 @@ def die_with_parent(parent_pid: int) -> None:
 _PR_SET_PDEATHSIG = 1
 
 
+def episode_task(spec: EpisodeSpec, capture_to: Path | None = None, replay_from: Path | None = None) -> dict[str, Any]:
+    """One study episode's record: replayed when it can be, else run.
+
+    When the store at ``replay_from`` has both ``spec``'s record and its capture, the capture is replayed through
+    the solver of this checkout (``arc_env.bench.capture.rescore``); otherwise the episode is run
+    (``run_episode``, writing its capture to ``capture_to``).
+    """
+    if replay_from is not None:
+        source = EpisodeStore(replay_from)
+        record, path = source.get(spec), source.capture_path(spec)
+        if record is not None and path.is_file():
+            from arc_env.bench.capture import load_capture, rescore  # (it imports this module)
+
+            return rescore(record, load_capture(path))
+    return run_episode(spec, capture_to)
+
+
 def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None, workers: int = 1,
                  on_record: Callable[[dict[str, Any], bool], None] | None = None,
-                 ray_address: str | None = None) -> dict[EpisodeSpec, dict[str, Any]]:
+                 ray_address: str | None = None, keep_captures: bool = False,
+                 replay_from: Path | None = None) -> dict[EpisodeSpec, dict[str, Any]]:
     """Run every spec not already in ``store``; returns all records by spec.
 
     Args:
@@ -465,9 +537,20 @@ def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None
         ray_address: run the episodes as Ray tasks (``_run_on_ray``): ``RAY_LOCAL`` starts a local
             cluster for this call, anything else is the address of a running one (``ray.init(address=...)``:
             ``auto``, ``HOST:PORT``, ``ray://HOST:10001``). None: no Ray.
+        keep_captures: write each tracked ARC-Calib episode's capture into ``store`` too
+            (``EpisodeStore.capture_path``, ``arc_env.bench.capture``), to replay it later.
+        replay_from: a store (directory) of earlier records kept with their captures: the episodes it has both of
+            are replayed through this checkout's solver instead of rendered again (``episode_task``).
     """
     if workers < 1:
         raise InvalidInputError(f"workers must be >= 1, got {workers}")
+    if keep_captures and store is None:
+        raise InvalidInputError("keeping captures needs a store (--store DIR)")
+    if replay_from is not None:
+        if not Path(replay_from).is_dir():
+            raise InvalidInputError(f"no store to replay from at {replay_from}")
+        if store is None or Path(replay_from).resolve() == store.root.resolve():
+            raise InvalidInputError("replayed records go to a store of their own (--store DIR, not the one replayed)")
     specs = list(dict.fromkeys(specs))
     records: dict[EpisodeSpec, dict[str, Any]] = {}
     todo = []
@@ -480,6 +563,12 @@ def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None
         if on_record:
             on_record(found, True)
 
+    def arguments(spec: EpisodeSpec) -> tuple[EpisodeSpec, Path | None, Path | None]:
+        capture_to = store.capture_path(spec) if keep_captures and store is not None and capturable(spec) else None
+        if capture_to is not None:
+            capture_to.parent.mkdir(parents=True, exist_ok=True)
+        return spec, capture_to, replay_from
+
     def finish(record: dict[str, Any]) -> None:
         records[EpisodeSpec(**record["spec"])] = record
         if store is not None:
@@ -489,16 +578,16 @@ def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None
 
     if ray_address is not None:
         if todo:
-            _run_on_ray(todo, ray_address, workers, finish)
+            _run_on_ray([arguments(spec) for spec in todo], ray_address, workers, finish)
     elif workers == 1 or len(todo) <= 1:
         for spec in todo:
-            finish(run_episode(spec))
+            finish(episode_task(*arguments(spec)))
     else:
         saved = {k: os.environ.get(k) for k in _WORKER_THREADS}
         os.environ.update(_WORKER_THREADS)  # inherited by the spawned workers
         try:
             with worker_pool(workers) as pool:
-                futures = [pool.submit(run_episode, spec) for spec in todo]
+                futures = [pool.submit(episode_task, *arguments(spec)) for spec in todo]
                 for future in as_completed(futures):
                     finish(future.result())
         finally:
@@ -517,9 +606,11 @@ RAY_LOCAL = "local"
 RAY_OBJECT_STORE_BYTES = 200 * 1024**2
 
 
-def _run_on_ray(todo: list[EpisodeSpec], address: str, workers: int,
+def _run_on_ray(todo: list[tuple[EpisodeSpec, Path | None, Path | None]], address: str, workers: int,
                 finish: Callable[[dict[str, Any]], None]) -> None:
-    """Run ``todo`` as Ray tasks (one CPU each, one renderer and BLAS thread each); ``finish`` each record.
+    """Run ``todo`` (``episode_task``'s arguments) as Ray tasks (one CPU and one renderer and BLAS thread each).
+
+    ``finish`` is called on each record.
 
     Records are finished (stored) in order of completion, as with the process pool, so an interrupted study
     resumes from the store. A local cluster (``RAY_LOCAL``) is started with ``workers`` CPUs (1: all of
@@ -546,8 +637,8 @@ def _run_on_ray(todo: list[EpisodeSpec], address: str, workers: int,
         what = "start a local Ray cluster" if local else f"reach the Ray cluster at {address!r}"
         raise InvalidInputError(f"cannot {what}: {exc}") from exc
     try:
-        task = ray.remote(num_cpus=1, max_retries=0)(run_episode)
-        pending = [task.remote(spec) for spec in todo]
+        task = ray.remote(num_cpus=1, max_retries=0)(episode_task)
+        pending = [task.remote(*arguments) for arguments in todo]
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
             finish(ray.get(done[0]))
@@ -576,6 +667,13 @@ def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
                           "HOST:PORT or ray://HOST:10001; its nodes need this project installed at the same commit")
     parser.add_argument("--store", type=Path, help="keep finished episodes here and reuse them (resumable runs, "
                         "shared by bench_episode.py, compare_planners.py and reproduce_paper.py)")
+    parser.add_argument("--keep-captures", action="store_true",
+                        help="also keep each tracked episode's calibrator inputs (tracks and outline frames, about "
+                             "40-150 MB per 25-motion episode) under the store's captures/, for --replay-from")
+    parser.add_argument("--replay-from", type=Path, metavar="DIR",
+                        help="a store kept with --keep-captures: its episodes are replayed through this checkout's "
+                             "solver (same frames and motions, minutes -> seconds) into --store instead of rendered "
+                             "again; episodes it has no capture of are run")
 
 
 def add_study_outline_argument(parser: argparse.ArgumentParser, default: int) -> None:
@@ -604,7 +702,7 @@ def run_from_arguments(specs: Iterable[EpisodeSpec], args: argparse.Namespace,
     """:func:`run_episodes` with the store, workers and Ray cluster that :func:`add_runner_arguments` parsed."""
     ray_address = RAY_LOCAL if getattr(args, "ray", False) else getattr(args, "ray_address", None)
     return run_episodes(specs, EpisodeStore(args.store) if args.store else None, args.workers, on_record,
-                        ray_address)
+                        ray_address, getattr(args, "keep_captures", False), getattr(args, "replay_from", None))
 
 
 def write_figures(path: Path, figures: dict[str, Any]) -> None:

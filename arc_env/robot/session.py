@@ -87,6 +87,11 @@ def motion_refusal_reason(robot: RobotModel, checker: CollisionChecker, min_delt
 OUTLINE_FRAMES = 3
 
 
+def outline_image(grey: ImageArray, q: FloatArray) -> OutlineImage:
+    """The outline stage's image of a grey frame (H, W) uint8 taken with the arm at q (n,) rad: its edges."""
+    return OutlineImage(image_edges(grey), q, 0)
+
+
 @dataclass(frozen=True)
 class SessionConfig:
     """How a session checks, moves and calibrates.
@@ -547,20 +552,26 @@ class CalibrationSession:
         self.notify(self.n_motions - 1, q_start, joint, deltas, frames, tracks, outcome)
         return outcome
 
-    def outline_images(self, q_start: FloatArray, joint: int, deltas: FloatArray,
-                       frames: Sequence[ImageArray]) -> list[OutlineImage]:
-        """The edges of ``SessionConfig.outline_frames`` of a motion's F frames (deltas (F,) rad), evenly spaced.
+    def outline_greys(self, q_start: FloatArray, joint: int, deltas: FloatArray,
+                      frames: Sequence[ImageArray]) -> list[tuple[ImageArray, FloatArray]]:
+        """``SessionConfig.outline_frames`` of a motion's F RGB frames (deltas (F,) rad), evenly spaced, in grey.
 
-        Empty when the outline stage is off or there are no frames.
+        Each as (grey (H, W) uint8, the arm's configuration (n,) rad in it); empty when the outline stage is
+        off or there are no frames.
         """
         if not self.config.outline_frames or not len(frames):
             return []
-        images = []
+        greys = []
         for k in evenly_spaced(len(frames), self.config.outline_frames):
             q = np.array(q_start, dtype=np.float64)
             q[joint] += float(deltas[k])
-            images.append(OutlineImage(image_edges(cv2.cvtColor(np.asarray(frames[k]), cv2.COLOR_RGB2GRAY)), q, 0))
-        return images
+            greys.append((cv2.cvtColor(np.asarray(frames[k]), cv2.COLOR_RGB2GRAY), q))
+        return greys
+
+    def outline_images(self, q_start: FloatArray, joint: int, deltas: FloatArray,
+                       frames: Sequence[ImageArray]) -> list[OutlineImage]:
+        """The outline stage's images of a motion (``outline_greys``, each through ``outline_image``)."""
+        return [outline_image(grey, q) for grey, q in self.outline_greys(q_start, joint, deltas, frames)]
 
     def observe(self, q_start: FloatArray, joint: int, tracks: Sequence[KeypointTrack],
                 update: bool = True, outlines: Sequence[OutlineImage] = ()) -> MotionOutcome:
