@@ -28,6 +28,7 @@ from arc_env.bench.episodes import EpisodeSpec, truth_chi2  # noqa: E402
 from arc_env.robot.library import ROBOT_NAMES  # noqa: E402
 from arc_env.robot.session import OUTLINE_FRAMES  # noqa: E402
 from arc_env.sim.imaging import APPEARANCES, REALISMS  # noqa: E402
+from solver.errors import ArcCalibError  # noqa: E402
 from solver.frames import pose_difference  # noqa: E402
 
 
@@ -56,7 +57,11 @@ def main(argv: list[str] | None = None) -> int:
         save_capture(capture, args.out)
         print(f"wrote {args.out}: {len(capture.calls)} motions of {spec.key}")
         return 0
-    capture = load_capture(args.capture)
+    try:
+        capture = load_capture(args.capture)
+    except ArcCalibError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     print(f"{args.capture}: {capture.spec.key}, {len(capture.calls)} motions")
     for k, ((observation, _, _), state) in enumerate(zip(capture.calls, replay(capture), strict=True)):
         line = f"{k + 1:3d} joint {observation.joint}  {state.stage:8s} {state.start or '-':9s}"

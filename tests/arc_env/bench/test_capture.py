@@ -67,6 +67,8 @@ def test_the_script_prints_each_motion_and_bad_input_is_refused(capture, tmp_pat
     (tmp_path / "not.pkl").write_bytes(pickle.dumps({"a": 1}))
     with pytest.raises(InvalidInputError, match="not a capture"):
         load_capture(tmp_path / "not.pkl")
+    assert load_script("replay_solver").main(["replay", str(tmp_path / "missing.pkl")]) == 2
+    assert "not a readable capture" in capsys.readouterr().err
     with pytest.raises(InvalidInputError, match="tracked"):
         capture_episode(EpisodeSpec("random", 1, 0, 4, 480, 270, True))
 
