@@ -30,6 +30,10 @@ class InsufficientMotionsError(ArcCalibError):
     """Too few accepted motions to estimate T_camera_base."""
 
 
+class OutlineMismatchError(InsufficientMotionsError):
+    """From the first motions, the robot's outlines fit the images' edges too loosely at the tracks' pose (far off?)."""
+
+
 class UnobservablePoseError(ArcCalibError):
     """The accepted motions cannot fix all six degrees of freedom of T_camera_base."""
 

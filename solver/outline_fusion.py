@@ -51,7 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from solver.arrays import FloatArray
-from solver.errors import InsufficientMotionsError, InvalidInputError
+from solver.errors import InsufficientMotionsError, InvalidInputError, OutlineMismatchError
 from solver.frames import check_transform, perturb, pose_difference
 from solver.observations import CameraIntrinsics
 from solver.outlines import (
@@ -314,6 +314,8 @@ class OutlineAdjustment:
                 bad direction.
             InsufficientMotionsError: images from fewer than ``min_groups`` motions, too few contour points pair
                 with an edge, or the fused pose disagrees with the tracks' (the message gives the distance).
+            OutlineMismatchError: from fewer than ``trusted_groups`` motions, the outlines' residual scale at the
+                adjusted pose exceeds ``max_early_sigma_px`` (the tracks' pose may be far off).
         """
         T0 = check_transform(np.asarray(T_prior, dtype=np.float64), "T_prior")
         C0 = _symmetric(covariance_prior, "the prior covariance")
@@ -418,7 +420,7 @@ class OutlineAdjustment:
                     break
         normal = self._normal(T, self._pairs(T))
         if self.n_groups < cfg.trusted_groups and normal.sigma_px > cfg.max_early_sigma_px:
-            raise InsufficientMotionsError(
+            raise OutlineMismatchError(
                 f"from {self.n_groups} motions the outlines fit their edges too loosely (residual scale "
                 f"{normal.sigma_px:.2f} px, at most {cfg.max_early_sigma_px:g}): the tracks' pose may be far off")
         cov_outline = self._outline_covariance(normal)

@@ -31,6 +31,7 @@ from solver import (
 )
 from solver.calibration import AxisCorrespondence, family_offsets, pose_family
 from solver.camera import pixels_from_camera_points
+from solver.errors import OutlineMismatchError
 from solver.outline_fusion import OutlineFusionConfig, OutlineImage
 from solver.outlines import ImageEdges
 from solver.pipeline import CONICS_NOT_RIGID, CONICS_NOT_RUN, FOCAL_SCALE_TOLERANCE
@@ -723,3 +724,35 @@ def test_the_outlines_fix_the_depth_the_shoulder_joints_leave_free():
     assert rot < NOISY_ROT and trans < NOISY_TRANS
     xi = pose_difference(s.T_camera_base, T)
     assert xi @ np.linalg.solve(s.covariance, xi) < CHI2_6_999
+
+
+@pytest.mark.parametrize("mismatch", [False, True])
+def test_a_family_start_the_outlines_cannot_fit_is_refused(monkeypatch, mismatch):
+    """Two axes: the pose comes from the family. Outlines that fit near it keep it (true spheres' edges); outlines
+    that cannot be fitted near it (``OutlineMismatchError``, as a wrong branch gives) refuse it: it is neither
+    reported nor chained from, and the message says why."""
+    _stage_one_for(monkeypatch, 2)
+    rng = np.random.default_rng(1)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=20),
+                           rng)
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(rigid_axis=None, family_start=True),
+                     contours=_sphere_contours)
+    if mismatch:
+        def loose(*args, **kwargs):
+            raise OutlineMismatchError("from 3 motions the outlines fit their edges too loosely")
+
+        monkeypatch.setattr(cal.outlines, "fuse", loose)
+    starts, refusals = [], 0
+    for _ in range(5):
+        motion = scene.random_motion(rng)
+        cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
+        s = cal.state
+        starts.append(s.start)
+        refusals += "the two-axis pose family's start is refused by the robot's outlines" in s.message
+    if mismatch:
+        assert refusals > 0 and "family" not in starts and not cal._from_family and cal._refined is None
+    else:
+        assert refusals == 0 and "family" in starts and s.stage == "refined" and s.outline is not None
+        rot, trans = pose_errors(s.T_camera_base, T)
+        assert rot < NOISY_ROT and trans < NOISY_TRANS
