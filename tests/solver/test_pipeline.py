@@ -32,7 +32,7 @@ from solver import (
 from solver.calibration import AxisCorrespondence, family_offsets, pose_family
 from solver.camera import pixels_from_camera_points
 from solver.errors import OutlineMismatchError
-from solver.outline_fusion import OutlineFusionConfig, OutlineImage
+from solver.outline_fusion import OutlineAdjustment, OutlineFusionConfig, OutlineImage
 from solver.outlines import ImageEdges
 from solver.pipeline import CONICS_NOT_RIGID, CONICS_NOT_RUN, FOCAL_SCALE_TOLERANCE
 from solver.rigid_axis import RigidAxisConfig
@@ -756,3 +756,54 @@ def test_a_family_start_the_outlines_cannot_fit_is_refused(monkeypatch, mismatch
         assert refusals == 0 and "family" in starts and s.stage == "refined" and s.outline is not None
         rot, trans = pose_errors(s.T_camera_base, T)
         assert rot < NOISY_ROT and trans < NOISY_TRANS
+
+
+def _shoulder_rescue(rng_seed=3, motions=4, contours=_sphere_contours):
+    """A calibrator fed ``motions`` noisy motions of joints 1-3 alone (the tracks leave the depth free) with outline
+    images of the joint spheres, and T_true; and the scene and generator to make more motions."""
+    rng = np.random.default_rng(rng_seed)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.3, outlier_fraction=0.1, tracks_per_motion=30), rng)
+    cal = Calibrator(K, PANDA.axis_and_point, contours=contours)
+    for _ in range(motions):
+        motion = scene.random_motion(rng, joints=(0, 1, 2))
+        cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
+    return cal, T, scene, rng
+
+
+def test_a_rescued_pose_starts_the_next_rescue():
+    """An update that rescued the pose with the outlines hands it to the next update's rescue as its first start
+    (a fresh start may land on another branch), and the next rescue holds the truth as well."""
+    cal, T, scene, rng = _shoulder_rescue()
+    assert cal.state.start == "outlines"
+    rescued = cal.state.T_camera_base.copy()
+    starts = []
+    real = cal._rescue_from
+
+    def spy(start, *args):
+        starts.append(start.copy())
+        return real(start, *args)
+
+    cal._rescue_from = spy
+    motion = scene.random_motion(rng, joints=(0, 1, 2))
+    cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
+    s = cal.state
+    assert starts and np.array_equal(starts[0], rescued)
+    assert s.start == "outlines" and len(starts) == 1  # the first start served
+    rot, trans = pose_errors(s.T_camera_base, T)
+    assert rot < NOISY_ROT and trans < NOISY_TRANS
+
+
+def test_a_rescue_whose_outlines_fit_loosely_gives_no_pose(monkeypatch):
+    """However many motions, a rescued pose needs outlines that fit their edges (residual scale at most
+    ``max_early_sigma_px``): the fusion is made to report 3 px, and the rescue says so instead of a pose."""
+    real = OutlineAdjustment.fuse
+
+    def loose(self, *args, **kwargs):
+        return replace(real(self, *args, **kwargs), sigma_px=3.0)
+
+    monkeypatch.setattr(OutlineAdjustment, "fuse", loose)
+    cal, _, _, _ = _shoulder_rescue()
+    s = cal.state
+    assert s.T_camera_base is None and s.start == ""
+    assert "they fit their edges too loosely there (residual scale 3.00 px, at most 1)" in s.outline_note
