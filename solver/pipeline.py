@@ -580,8 +580,8 @@ class Calibrator:
         early_fusion: OutlineFusion | None = None
         if refined is not None:
             refined = self._without_weak_motions(refined)
-            if start_kind == "family":
-                early_fusion, why = self._family_outlines(refined)
+            if start_kind in ("family", "linear") and self._refined is None:
+                early_fusion, why = self._first_pose_outlines(refined, start_kind)
                 if why:
                     refined, self._from_family = None, False
                     message = f"{message}; {why}" if message else why
@@ -950,14 +950,15 @@ class Calibrator:
                               f"{other_score:.3g} px^2) {er:.3g} rad / {et:.3g} m apart; add motions")
         return chosen, ""
 
-    def _family_outlines(self, refined: RefinementResult) -> tuple[OutlineFusion | None, str]:
-        """The outlines' verdict on a pose that a family start gave: (their fusion or None, "" or why it is refused).
+    def _first_pose_outlines(self, refined: RefinementResult, start: Start) -> tuple[OutlineFusion | None, str]:
+        """The outlines' verdict on a first pose (``start``: "linear" or "family"): (their fusion or None, why not).
 
-        A family start chooses among poses that fit the tracks of the first few motions about equally, and can choose
-        a wrong branch that the tracks then fit (seen: a realistic 720p Panda 1.84 rad and 379 mm off for three
-        motions, 1-sigma 0.03 rad and 62 mm). Where the robot's outlines are at hand and cannot be fitted near it
-        (``OutlineMismatchError``), the pose is refused rather than reported; the outlines' rescue may then try.
-        Any other failure of the outlines says nothing against the pose (None, "").
+        From the first few motions the linear calibration and the pose family can settle on a wrong branch that the
+        tracks then fit (seen: a realistic 720p Panda 1.84 rad and 379 mm off for three motions from the family,
+        1-sigma 0.03 rad and 62 mm; a 720p iiwa 115 mm off from the linear pose, chi-square of the truth 35). Where
+        the robot's outlines are at hand and cannot be fitted near it (``OutlineMismatchError``), the pose is refused
+        rather than reported or chained from; the outlines' rescue may then try. Any other failure of the outlines
+        says nothing against the pose (None, "").
         """
         if self.outlines is None or not self.outlines.n_images:
             return None, ""
@@ -966,7 +967,8 @@ class Calibrator:
             return self.outlines.fuse(refined.T_camera_base, refined.covariance,
                                       last.T_camera_base if last is not None else None), ""
         except OutlineMismatchError as exc:
-            return None, f"the two-axis pose family's start is refused by the robot's outlines: {exc}"
+            source = "the two-axis pose family" if start == "family" else "the linear calibration"
+            return None, f"the first pose, from {source}, is refused by the robot's outlines: {exc}"
         except (ArcCalibError, np.linalg.LinAlgError):
             return None, ""
 

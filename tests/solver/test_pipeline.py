@@ -727,11 +727,14 @@ def test_the_outlines_fix_the_depth_the_shoulder_joints_leave_free():
 
 
 @pytest.mark.parametrize("mismatch", [False, True])
-def test_a_family_start_the_outlines_cannot_fit_is_refused(monkeypatch, mismatch):
-    """Two axes: the pose comes from the family. Outlines that fit near it keep it (true spheres' edges); outlines
-    that cannot be fitted near it (``OutlineMismatchError``, as a wrong branch gives) refuse it: it is neither
-    reported nor chained from, and the message says why."""
-    _stage_one_for(monkeypatch, 2)
+@pytest.mark.parametrize("start", ["family", "linear"])
+def test_a_first_pose_the_outlines_cannot_fit_is_refused(monkeypatch, mismatch, start):
+    """The first pose comes from the family (two axes) or the linear calibration (every motion's axis). Outlines
+    that fit near it keep it (true spheres' edges); outlines that cannot be fitted near it (``OutlineMismatchError``,
+    as a wrong branch gives) refuse it: it is neither reported nor chained from, and the message says why."""
+    if start == "family":
+        _stage_one_for(monkeypatch, 2)
+    source = "the two-axis pose family" if start == "family" else "the linear calibration"
     rng = np.random.default_rng(1)
     T = sample_camera_pose(rng)
     scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=20),
@@ -744,16 +747,16 @@ def test_a_family_start_the_outlines_cannot_fit_is_refused(monkeypatch, mismatch
 
         monkeypatch.setattr(cal.outlines, "fuse", loose)
     starts, refusals = [], 0
-    for _ in range(5):
+    for _ in range(5 if start == "family" else 8):
         motion = scene.random_motion(rng)
         cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
         s = cal.state
         starts.append(s.start)
-        refusals += "the two-axis pose family's start is refused by the robot's outlines" in s.message
+        refusals += f"the first pose, from {source}, is refused by the robot's outlines" in s.message
     if mismatch:
-        assert refusals > 0 and "family" not in starts and not cal._from_family and cal._refined is None
+        assert refusals > 0 and start not in starts and not cal._from_family and cal._refined is None
     else:
-        assert refusals == 0 and "family" in starts and s.stage == "refined" and s.outline is not None
+        assert refusals == 0 and start in starts and s.stage == "refined" and s.outline is not None
         rot, trans = pose_errors(s.T_camera_base, T)
         assert rot < NOISY_ROT and trans < NOISY_TRANS
 
