@@ -15,7 +15,7 @@ interrupted and resumed; ``--workers N`` runs N episodes at once (one renderer t
 ``--keep-captures`` also keeps each tracked episode's calibrator inputs in the store (``arc_env.bench.capture``:
 its tracks and outline frames), and ``--replay-from DIR --store NEW`` then rescores such a store with the solver
 of this checkout, in seconds per episode instead of minutes (same frames and motions; records marked
-``replayed_from``).
+``replayed_from``); with ``--stored-only`` too it replays what DIR captured and renders nothing.
 ``--robots panda,iiwa,xarm6`` runs the benchmark on each named robot of ``arc_env.robot.library`` in turn
 (the camera poses scaled to each arm, ``arc_env.bench.poses.benchmark_view``); ``--sizes
 1920x1080,1280x720`` at each image size (default: ``--width`` x ``--height``); ``--beside-clean`` runs the
@@ -245,7 +245,8 @@ def main(argv: list[str] | None = None) -> int:
     add_study_outline_argument(parser, OUTLINE_FRAMES)
     parser.add_argument("--stored-only", action="store_true",
                         help="run nothing: the figures of the episodes already in --store (a partial table while "
-                             "a run goes on; a cell without stored runs is left out)")
+                             "a run goes on; a cell without stored runs is left out); with --replay-from, the "
+                             "episodes captured there and not yet in --store are replayed first (no rendering)")
     parser.add_argument("--json", type=Path, help="write the figures to this file")
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
@@ -258,6 +259,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(exc))
     if args.stored_only and args.store is None:
         parser.error("--stored-only reads the episodes of --store DIR")
+    if args.replay_from is not None and not args.replay_from.is_dir():
+        parser.error(f"--replay-from: no store at {args.replay_from}")
     if args.beside_clean and args.realism == "clean":
         parser.error("--beside-clean adds clean painted runs beside --realism realistic; --realism is already clean")
     nested = args.robots is not None or args.sizes is not None or args.beside_clean
@@ -290,10 +293,18 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.stored_only:
         store = EpisodeStore(args.store)
+        replayed = set()
+        if args.replay_from is not None:  # render nothing: replay what the source captured and --store lacks
+            source = EpisodeStore(args.replay_from)
+            todo = [spec for spec in specs.values() if store.get(spec) is None and source.get(spec) is not None
+                    and source.capture_path(spec).is_file()]
+            replayed = set(run_from_arguments(todo, args, show)) if todo else set()
         records = {spec: record for spec in specs.values() if (record := store.get(spec)) is not None}
-        for record in records.values():
-            show(record, True)
-        print(f"{len(records)} of {len(specs)} episodes stored")
+        for spec, record in records.items():
+            if spec not in replayed:
+                show(record, True)
+        now = f" ({len(replayed)} replayed now)" if replayed else ""
+        print(f"{len(records)} of {len(specs)} episodes stored{now}")
     else:
         records = run_from_arguments(specs.values(), args, show)
     print()

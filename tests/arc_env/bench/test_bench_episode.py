@@ -203,6 +203,41 @@ def test_stored_only_reports_the_stored_episodes_and_runs_none(script, monkeypat
         script.main(["--stored-only"])  # no --store
 
 
+def test_stored_only_with_replay_from_replays_the_captured_episodes_alone(script, monkeypatch, tmp_path, capsys):
+    """--stored-only --replay-from SRC: the episodes SRC has a record and a capture of, and --store lacks, are replayed
+    (no other is run); then every stored one is reported."""
+    specs = [EpisodeSpec("random", pose, seed, 10, 1920, 1080, realism="realistic", robot="panda", outline_frames=3)
+             for pose in range(2) for seed in range(2)]
+    records = _fake_runner(specs, None)
+    source, dest = EpisodeStore(tmp_path / "src"), EpisodeStore(tmp_path / "dst")
+    for spec in specs[:3]:  # (0, 0), (0, 1), (1, 0) recorded there
+        source.put({**records[spec], "spec": asdict(spec)})
+    for spec in (specs[0], specs[2], specs[3]):  # captured: (0, 0), (1, 0) and (1, 1), which has no record
+        source.capture_path(spec).parent.mkdir(parents=True, exist_ok=True)
+        source.capture_path(spec).write_bytes(b"capture")
+    dest.put({**records[specs[0]], "spec": asdict(specs[0])})  # (0, 0) replayed before
+    asked = []
+
+    def replaying(todo, args, on_record=None):
+        asked.extend(todo)
+        assert args.replay_from == tmp_path / "src"
+        out = {}
+        for spec in todo:
+            dest.put({**records[spec], "spec": asdict(spec)})
+            out[spec] = records[spec]
+            on_record(records[spec], False)
+        return out
+
+    monkeypatch.setattr(script, "run_from_arguments", replaying)
+    argv = ["--poses", "2", "--seeds", "2", "--motions", "10", "--realism", "realistic", "--no-oracle",
+            "--store", str(tmp_path / "dst"), "--stored-only", "--replay-from", str(tmp_path / "src")]
+    assert script.main(argv) == 0
+    assert asked == [specs[2]]
+    assert "2 of 4 episodes stored (1 replayed now)" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        script.main([*argv[:-1], str(tmp_path / "missing")])
+
+
 def test_bad_sizes_and_beside_clean_without_realism_are_refused(script):
     with pytest.raises(SystemExit):
         script.main(["--sizes", "1920by1080"])
