@@ -76,13 +76,12 @@ from scipy.stats import chi2
 from arc_env.bench.episodes import (
     EpisodeSpec,
     EpisodeStore,
-    add_runner_arguments,
     add_study_outline_argument,
     commits_used,
     padded_curve,
-    run_from_arguments,
     write_figures,
 )
+from arc_env.bench.runner import add_runner_arguments, run_from_arguments
 from arc_env.robot.library import DEFAULT_ROBOT, ROBOT_NAMES, parse_robot_names
 from arc_env.robot.session import OUTLINE_FRAMES
 from arc_env.sim.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M

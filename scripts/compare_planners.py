@@ -30,13 +30,12 @@ from reproduce_paper import error_plot  # scripts/ is on sys.path when run as a 
 
 from arc_env.bench.episodes import (
     EpisodeSpec,
-    add_runner_arguments,
     add_study_outline_argument,
     commits_used,
     padded_curve,
-    run_from_arguments,
     write_figures,
 )
+from arc_env.bench.runner import add_runner_arguments, run_from_arguments
 from arc_env.sim.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M
 
 PLANNERS = ("random", "informed")

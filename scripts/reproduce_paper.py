@@ -39,14 +39,13 @@ import numpy as np
 from arc_env.bench.episodes import (
     METHODS,
     EpisodeSpec,
-    add_runner_arguments,
     add_study_outline_argument,
     commits_used,
     padded_curve,
-    run_from_arguments,
     write_figures,
 )
 from arc_env.bench.poses import benchmark_camera_pose
+from arc_env.bench.runner import add_runner_arguments, run_from_arguments
 from arc_env.robot.overlay import mask_iou
 from arc_env.sim.env import ArcCalibEnv, EnvConfig
 from arc_env.sim.scene import SceneConfig

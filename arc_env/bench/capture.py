@@ -25,11 +25,14 @@ import numpy as np
 
 from arc_env.bench.episodes import (
     EpisodeSpec,
+    EpisodeStore,
     bench_calibrator_config,
+    capturable,
     code_version,
     note_calibrator,
     note_state,
     run_arc_episode,
+    run_episode,
 )
 from arc_env.robot.contours import RobotContours
 from arc_env.robot.exports import write_files_atomic
@@ -41,8 +44,8 @@ from solver.observations import CameraIntrinsics
 from solver.outline_fusion import OutlineImage
 from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig
 
-__all__ = ["CallRecorder", "Capture", "CapturedOutline", "capture_episode", "load_capture", "replay", "rescore",
-           "save_capture"]
+__all__ = ["CallRecorder", "Capture", "CapturedOutline", "capture_episode", "episode_task", "load_capture", "replay",
+           "rescore", "run_and_capture", "save_capture"]
 
 
 @dataclass(frozen=True)
@@ -152,13 +155,45 @@ class CallRecorder:
                        tuple(self._estimates))
 
 
-def capture_episode(spec: EpisodeSpec) -> Capture:
-    """Run ``spec``'s episode (random or informed planner, as the benchmark) and keep its calibrator's inputs."""
-    if spec.method not in ("random", "informed") or spec.oracle:
+def run_and_capture(spec: EpisodeSpec) -> tuple[dict[str, Any], Capture]:
+    """Run ``spec``'s episode (random or informed planner, as the benchmark): its record and its calibrator's inputs."""
+    if not capturable(spec):
         raise InvalidInputError(f"a capture needs a tracked random or informed episode, got {spec}")
     kept: list[Capture] = []
-    run_arc_episode(spec, kept)
-    return kept[0]
+
+    def watch(env: Any) -> Any:
+        recorder = CallRecorder(env)
+        return lambda: kept.append(recorder.capture(spec))
+
+    record = run_arc_episode(spec, watch)
+    return record, kept[0]
+
+
+def capture_episode(spec: EpisodeSpec) -> Capture:
+    """Run ``spec``'s episode (random or informed planner, as the benchmark) and keep its calibrator's inputs."""
+    return run_and_capture(spec)[1]
+
+
+def episode_task(spec: EpisodeSpec, capture_root: Path | None = None,
+                 replay_from: Path | None = None) -> dict[str, Any]:
+    """One study episode's record (``arc_env.bench.episodes.run_episodes``' task): replayed when it can be, else run.
+
+    When the store at ``replay_from`` has both ``spec``'s record and its capture, the capture is replayed through
+    the solver of this checkout (``rescore``). Otherwise the episode is run, and with ``capture_root`` (a store's
+    directory) a tracked ARC-Calib episode's capture is written there (``EpisodeStore.capture_path``).
+    """
+    if replay_from is not None:
+        source = EpisodeStore(replay_from)
+        record, path = source.get(spec), source.capture_path(spec)
+        if record is not None and path.is_file():
+            return rescore(record, load_capture(path))
+    if capture_root is None or not capturable(spec):
+        return run_episode(spec)
+    record, capture = run_and_capture(spec)
+    path = EpisodeStore(capture_root).capture_path(spec)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_capture(capture, path)
+    return record
 
 
 def _calibrator(capture: Capture, config: CalibratorConfig | None) -> Calibrator:

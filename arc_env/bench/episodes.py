@@ -67,7 +67,7 @@ from arc_env.robot.exports import write_files_atomic
 from arc_env.robot.library import DEFAULT_ROBOT, ROBOT_NAMES, library_robot
 from arc_env.robot.session import UsableCriteria, state_unusable_reason
 from arc_env.sim.background import BACKGROUNDS
-from arc_env.sim.imaging import APPEARANCES, REALISMS, realism_settings
+from arc_env.sim.imaging import realism_settings
 from solver.arrays import FloatArray
 from solver.errors import ArcCalibError, InvalidInputError
 from solver.frames import pose_difference, pose_errors
@@ -229,21 +229,11 @@ def truth_chi2(state: CalibrationState, T_true: FloatArray) -> float | None:
     return float(z @ z)
 
 
-def run_episode(spec: EpisodeSpec, capture_to: Path | None = None) -> dict[str, Any]:
-    """Run one episode and return its record (see the module doc).
-
-    With ``capture_to``, a tracked ARC-Calib episode also writes its capture there (``arc_env.bench.capture``).
-    """
+def run_episode(spec: EpisodeSpec) -> dict[str, Any]:
+    """Run one episode and return its record (see the module doc)."""
     if spec.method == "marker":
         return _run_marker(spec)
-    if capture_to is None or not capturable(spec):
-        return run_arc_episode(spec)
-    captures: list[Any] = []
-    record = run_arc_episode(spec, captures)
-    from arc_env.bench.capture import save_capture  # (it imports this module)
-
-    save_capture(captures[0], capture_to)
-    return record
+    return run_arc_episode(spec)
 
 
 def capturable(spec: EpisodeSpec) -> bool:
@@ -322,10 +312,11 @@ def note_calibrator(record: dict[str, Any], calibrator: Calibrator) -> None:
     record["usable"] = not state_unusable_reason(calibrator.state, calibrator.state.n_accepted, UsableCriteria())
 
 
-def run_arc_episode(spec: EpisodeSpec, captures: list[Any] | None = None) -> dict[str, Any]:
-    """Run an ARC-Calib episode and return its record; with a list ``captures``, append its ``Capture`` to it.
+def run_arc_episode(spec: EpisodeSpec, watch: Callable[[Any], Callable[[], None]] | None = None) -> dict[str, Any]:
+    """Run an ARC-Calib episode and return its record.
 
-    (``arc_env.bench.capture``: the calibrator's inputs, to replay through another solver.)
+    ``watch``, when given, is called with the env once it is reset and returns what to call when the episode has
+    ended, before the env closes (``arc_env.bench.capture`` keeps the calibrator's inputs so).
     """
     started = time.perf_counter()
     # "report": the solver's time on the conic front end for the benchmark's report alone (``conics_always``),
@@ -339,11 +330,7 @@ def run_arc_episode(spec: EpisodeSpec, captures: list[Any] | None = None) -> dic
                               "outline_note": ""}
     env, obs = make_env(spec)
     try:
-        recorder = None
-        if captures is not None:
-            from arc_env.bench.capture import CallRecorder  # (it imports this module)
-
-            recorder = CallRecorder(env)
+        ended = watch(env) if watch is not None else None
         planner = episode_planner(env, spec)
         while len(record["curve"]) < spec.motions:
             t0 = time.perf_counter()
@@ -381,8 +368,8 @@ def run_arc_episode(spec: EpisodeSpec, captures: list[Any] | None = None) -> dic
         calibrator = env.session.calibrator
         assert calibrator is not None
         note_calibrator(record, calibrator)
-        if recorder is not None and captures is not None:
-            captures.append(recorder.capture(spec))
+        if ended is not None:
+            ended()
     finally:
         env.close()
     seconds["planning"] = float(sum(record["planning"]))
@@ -503,27 +490,10 @@ def die_with_parent(parent_pid: int) -> None:
 _PR_SET_PDEATHSIG = 1
 
 
-def episode_task(spec: EpisodeSpec, capture_to: Path | None = None, replay_from: Path | None = None) -> dict[str, Any]:
-    """One study episode's record: replayed when it can be, else run.
-
-    When the store at ``replay_from`` has both ``spec``'s record and its capture, the capture is replayed through
-    the solver of this checkout (``arc_env.bench.capture.rescore``); otherwise the episode is run
-    (``run_episode``, writing its capture to ``capture_to``).
-    """
-    if replay_from is not None:
-        source = EpisodeStore(replay_from)
-        record, path = source.get(spec), source.capture_path(spec)
-        if record is not None and path.is_file():
-            from arc_env.bench.capture import load_capture, rescore  # (it imports this module)
-
-            return rescore(record, load_capture(path))
-    return run_episode(spec, capture_to)
-
-
 def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None, workers: int = 1,
                  on_record: Callable[[dict[str, Any], bool], None] | None = None,
-                 ray_address: str | None = None, keep_captures: bool = False,
-                 replay_from: Path | None = None) -> dict[EpisodeSpec, dict[str, Any]]:
+                 ray_address: str | None = None,
+                 task: Callable[[EpisodeSpec], dict[str, Any]] = run_episode) -> dict[EpisodeSpec, dict[str, Any]]:
     """Run every spec not already in ``store``; returns all records by spec.
 
     Args:
@@ -537,20 +507,12 @@ def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None
         ray_address: run the episodes as Ray tasks (``_run_on_ray``): ``RAY_LOCAL`` starts a local
             cluster for this call, anything else is the address of a running one (``ray.init(address=...)``:
             ``auto``, ``HOST:PORT``, ``ray://HOST:10001``). None: no Ray.
-        keep_captures: write each tracked ARC-Calib episode's capture into ``store`` too
-            (``EpisodeStore.capture_path``, ``arc_env.bench.capture``), to replay it later.
-        replay_from: a store (directory) of earlier records kept with their captures: the episodes it has both of
-            are replayed through this checkout's solver instead of rendered again (``episode_task``).
+        task: what gives a spec's record (default ``run_episode``; a picklable callable, e.g. a
+            ``functools.partial`` of a module function: ``arc_env.bench.capture.episode_task`` keeps or replays
+            captures).
     """
     if workers < 1:
         raise InvalidInputError(f"workers must be >= 1, got {workers}")
-    if keep_captures and store is None:
-        raise InvalidInputError("keeping captures needs a store (--store DIR)")
-    if replay_from is not None:
-        if not Path(replay_from).is_dir():
-            raise InvalidInputError(f"no store to replay from at {replay_from}")
-        if store is None or Path(replay_from).resolve() == store.root.resolve():
-            raise InvalidInputError("replayed records go to a store of their own (--store DIR, not the one replayed)")
     specs = list(dict.fromkeys(specs))
     records: dict[EpisodeSpec, dict[str, Any]] = {}
     todo = []
@@ -563,12 +525,6 @@ def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None
         if on_record:
             on_record(found, True)
 
-    def arguments(spec: EpisodeSpec) -> tuple[EpisodeSpec, Path | None, Path | None]:
-        capture_to = store.capture_path(spec) if keep_captures and store is not None and capturable(spec) else None
-        if capture_to is not None:
-            capture_to.parent.mkdir(parents=True, exist_ok=True)
-        return spec, capture_to, replay_from
-
     def finish(record: dict[str, Any]) -> None:
         records[EpisodeSpec(**record["spec"])] = record
         if store is not None:
@@ -578,16 +534,16 @@ def run_episodes(specs: Iterable[EpisodeSpec], store: EpisodeStore | None = None
 
     if ray_address is not None:
         if todo:
-            _run_on_ray([arguments(spec) for spec in todo], ray_address, workers, finish)
+            _run_on_ray(todo, ray_address, workers, finish, task)
     elif workers == 1 or len(todo) <= 1:
         for spec in todo:
-            finish(episode_task(*arguments(spec)))
+            finish(task(spec))
     else:
         saved = {k: os.environ.get(k) for k in _WORKER_THREADS}
         os.environ.update(_WORKER_THREADS)  # inherited by the spawned workers
         try:
             with worker_pool(workers) as pool:
-                futures = [pool.submit(episode_task, *arguments(spec)) for spec in todo]
+                futures = [pool.submit(task, spec) for spec in todo]
                 for future in as_completed(futures):
                     finish(future.result())
         finally:
@@ -606,9 +562,14 @@ RAY_LOCAL = "local"
 RAY_OBJECT_STORE_BYTES = 200 * 1024**2
 
 
-def _run_on_ray(todo: list[tuple[EpisodeSpec, Path | None, Path | None]], address: str, workers: int,
-                finish: Callable[[dict[str, Any]], None]) -> None:
-    """Run ``todo`` (``episode_task``'s arguments) as Ray tasks (one CPU and one renderer and BLAS thread each).
+def _run_task(task: Callable[[EpisodeSpec], dict[str, Any]], spec: EpisodeSpec) -> dict[str, Any]:
+    """``task(spec)`` (what a Ray task runs: Ray wants a plain function)."""
+    return task(spec)
+
+
+def _run_on_ray(todo: list[EpisodeSpec], address: str, workers: int, finish: Callable[[dict[str, Any]], None],
+                task: Callable[[EpisodeSpec], dict[str, Any]]) -> None:
+    """Run ``todo`` as Ray tasks of ``task`` (one CPU and one renderer and BLAS thread each).
 
     ``finish`` is called on each record.
 
@@ -637,43 +598,13 @@ def _run_on_ray(todo: list[tuple[EpisodeSpec, Path | None, Path | None]], addres
         what = "start a local Ray cluster" if local else f"reach the Ray cluster at {address!r}"
         raise InvalidInputError(f"cannot {what}: {exc}") from exc
     try:
-        task = ray.remote(num_cpus=1, max_retries=0)(episode_task)
-        pending = [task.remote(*arguments) for arguments in todo]
+        remote = ray.remote(num_cpus=1, max_retries=0)(_run_task)
+        pending = [remote.remote(task, spec) for spec in todo]
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
             finish(ray.get(done[0]))
     finally:
         ray.shutdown()
-
-
-def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
-    """The study scripts' ``--workers N``, ``--store DIR`` (read back by :func:`run_from_arguments`) and the look."""
-    parser.add_argument("--realism", choices=REALISMS, default="clean",
-                        help="camera and robot: clean renders (default) or realistic (noise, blur, H.264, shadows)")
-    parser.add_argument("--appearance", choices=APPEARANCES,
-                        help="the robot's surface (default: painted when clean, realistic when realistic)")
-    parser.add_argument("--background", choices=BACKGROUNDS, default="floor",
-                        help="what stands behind the robot: the floor alone (default) or a lab's cabinets, shelves, "
-                             "posters and boxes (arc_env.sim.background)")
-    parser.add_argument("--workers", type=int, default=1,
-                        help="episodes run in parallel processes (default 1); with --ray, the local cluster's CPUs "
-                             "(default: all)")
-    ray = parser.add_mutually_exclusive_group()
-    ray.add_argument("--ray", action="store_true",
-                     help="run the episodes as Ray tasks on a local Ray cluster started for this run (pip install "
-                          "'arc-calib[ray]')")
-    ray.add_argument("--ray-address", metavar="ADDR",
-                     help="run the episodes on a running Ray cluster: 'auto' (the one this machine belongs to), "
-                          "HOST:PORT or ray://HOST:10001; its nodes need this project installed at the same commit")
-    parser.add_argument("--store", type=Path, help="keep finished episodes here and reuse them (resumable runs, "
-                        "shared by bench_episode.py, compare_planners.py and reproduce_paper.py)")
-    parser.add_argument("--keep-captures", action="store_true",
-                        help="also keep each tracked episode's calibrator inputs (tracks and outline frames, about "
-                             "40-150 MB per 25-motion episode) under the store's captures/, for --replay-from")
-    parser.add_argument("--replay-from", type=Path, metavar="DIR",
-                        help="a store kept with --keep-captures: its episodes are replayed through this checkout's "
-                             "solver (same frames and motions, minutes -> seconds) into --store instead of rendered "
-                             "again; episodes it has no capture of are run")
 
 
 def add_study_outline_argument(parser: argparse.ArgumentParser, default: int) -> None:
@@ -694,15 +625,6 @@ def add_study_outline_argument(parser: argparse.ArgumentParser, default: int) ->
     parser.add_argument("--outline-frames", type=frames, default=default,
                         help="images per motion for the outline stage (the robot's outlines adjusted with the "
                              f"tracks; tracked ARC-Calib runs only); default {default}; 0: the tracks alone")
-
-
-def run_from_arguments(specs: Iterable[EpisodeSpec], args: argparse.Namespace,
-                       on_record: Callable[[dict[str, Any], bool], None] | None = None
-                       ) -> dict[EpisodeSpec, dict[str, Any]]:
-    """:func:`run_episodes` with the store, workers and Ray cluster that :func:`add_runner_arguments` parsed."""
-    ray_address = RAY_LOCAL if getattr(args, "ray", False) else getattr(args, "ray_address", None)
-    return run_episodes(specs, EpisodeStore(args.store) if args.store else None, args.workers, on_record,
-                        ray_address, getattr(args, "keep_captures", False), getattr(args, "replay_from", None))
 
 
 def write_figures(path: Path, figures: dict[str, Any]) -> None:

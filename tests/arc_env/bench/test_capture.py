@@ -8,6 +8,7 @@ import pytest
 
 from arc_env.bench.capture import CapturedOutline, capture_episode, load_capture, replay, rescore, save_capture
 from arc_env.bench.episodes import EpisodeSpec, EpisodeStore, code_version, run_episodes
+from arc_env.bench.runner import study_task
 from solver.errors import InvalidInputError
 from tests.support.scripts import load_script
 
@@ -25,7 +26,7 @@ SOLVER_FIELDS = ("curve", "std_curve", "chi2_curve", "error_curve", "covariance_
 def kept(tmp_path_factory):
     """A store holding SPEC's record and, from the same run, its capture."""
     store = EpisodeStore(tmp_path_factory.mktemp("kept"))
-    run_episodes([SPEC], store, keep_captures=True)
+    run_episodes([SPEC], store, task=study_task(store, keep_captures=True))
     return store
 
 
@@ -78,7 +79,8 @@ def test_a_replayed_study_rewrites_the_solvers_fields_of_the_same_record(kept, t
     assert original is not None and kept.capture_path(SPEC).is_file()
     seen = []
     dest = EpisodeStore(tmp_path / "replayed")
-    replayed = run_episodes([SPEC], dest, replay_from=kept.root, on_record=lambda r, s: seen.append(s))[SPEC]
+    replayed = run_episodes([SPEC], dest, on_record=lambda r, s: seen.append(s),
+                            task=study_task(dest, replay_from=kept.root))[SPEC]
     assert seen == [False] and dest.get(SPEC) == replayed
     for name in SOLVER_FIELDS:  # the solver has not changed: its fields come out the same
         _assert_same(original[name], replayed[name])
@@ -93,11 +95,11 @@ def test_a_replayed_study_rewrites_the_solvers_fields_of_the_same_record(kept, t
 def test_a_replay_refuses_what_does_not_belong_together(kept, capture, tmp_path):
     original = kept.get(SPEC)
     with pytest.raises(InvalidInputError, match="own"):
-        run_episodes([SPEC], kept, replay_from=kept.root)
+        study_task(kept, replay_from=kept.root)
     with pytest.raises(InvalidInputError, match="no store"):
-        run_episodes([SPEC], EpisodeStore(tmp_path / "d"), replay_from=tmp_path / "missing")
+        study_task(EpisodeStore(tmp_path / "d"), replay_from=tmp_path / "missing")
     with pytest.raises(InvalidInputError, match="needs a store"):
-        run_episodes([SPEC], None, keep_captures=True)
+        study_task(None, keep_captures=True)
     other = copy.deepcopy(original)
     other["spec"]["pose"] = 2
     with pytest.raises(InvalidInputError, match="capture is of"):
