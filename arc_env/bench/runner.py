@@ -47,7 +47,8 @@ def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
                         "shared by bench_episode.py, compare_planners.py and reproduce_paper.py)")
     parser.add_argument("--keep-captures", action="store_true",
                         help="also keep each tracked episode's calibrator inputs (tracks and outline frames, about "
-                             "40-150 MB per 25-motion episode) under the store's captures/, for --replay-from")
+                             "16-17 MB per realistic 720p 25-motion episode) under the store's captures/, for "
+                             "--replay-from")
     parser.add_argument("--replay-from", type=Path, metavar="DIR",
                         help="a store kept with --keep-captures: its episodes are replayed through this checkout's "
                              "solver (same frames and motions, minutes -> seconds) into --store instead of rendered "
