@@ -577,17 +577,24 @@ class Calibrator:
             else:
                 self._store_batch(live, tracks, refined)
                 self._from_family = True
-        early_fusion: OutlineFusion | None = None
+        t_refined = time.perf_counter()
+        outline: OutlineFusion | None = None
+        outline_note = ""
         if refined is not None:
             refined = self._without_weak_motions(refined)
-            if start_kind in ("family", "linear") and self._refined is None:
-                early_fusion, why = self._first_pose_outlines(refined, start_kind)
-                if why:
-                    refined, self._from_family = None, False
-                    message = f"{message}; {why}" if message else why
+            t_refined = time.perf_counter()
+            outline, failure = self._fuse_outlines(refined)
+            outline_note = "" if failure is None else f"{type(failure).__name__}: {failure}"
+            if (isinstance(failure, OutlineMismatchError) and start_kind in ("family", "linear")
+                    and self._refined is None):
+                # A first pose the outlines cannot fit near: refused, neither reported nor chained from
+                # (``_fuse_outlines``); the outlines' rescue may then try.
+                source = "the two-axis pose family" if start_kind == "family" else "the linear calibration"
+                why = f"the first pose, from {source}, is refused by the robot's outlines: {failure}"
+                refined, self._from_family, outline_note = None, False, ""
+                message = f"{message}; {why}" if message else why
         if refined is not None:
             self._refined = refined
-        t_refined = time.perf_counter()
         rescued, rescue_note = None, ""
         if refined is None and cfg.refine and self.outlines is not None and live:
             rescued, rescue_note = self._outline_rescue(live, with_axis, linear, tracks)
@@ -608,15 +615,10 @@ class Calibrator:
             T, stage = None, "none"
             if linear is not None:
                 message = f"the linear estimate is not confirmed by the bundle adjustment: {message}"
-        outline, outline_note = rescued, rescue_note
-        if refined is not None and self.outlines is not None and self.outlines.n_images:
-            try:
-                last = self.state.outline  # the adjustment goes on from where the last one ended
-                outline = early_fusion or self.outlines.fuse(refined.T_camera_base, refined.covariance,
-                                                             last.T_camera_base if last is not None else None)
-                T = outline.T_camera_base
-            except (ArcCalibError, np.linalg.LinAlgError) as exc:
-                outline_note = f"{type(exc).__name__}: {exc}"
+        if refined is None:
+            outline, outline_note = rescued, rescue_note
+        elif outline is not None:
+            T = outline.T_camera_base
         t_outline = time.perf_counter()
         if T is not None and rescued is None and self._enters_window(refined, live):
             self._monitor.push(T)
@@ -950,27 +952,24 @@ class Calibrator:
                               f"{other_score:.3g} px^2) {er:.3g} rad / {et:.3g} m apart; add motions")
         return chosen, ""
 
-    def _first_pose_outlines(self, refined: RefinementResult, start: Start) -> tuple[OutlineFusion | None, str]:
-        """The outlines' verdict on a first pose (``start``: "linear" or "family"): (their fusion or None, why not).
+    def _fuse_outlines(self, refined: RefinementResult) -> tuple[OutlineFusion | None, Exception | None]:
+        """The outlines adjusted with the tracks' pose ``refined``: (the fusion, None) or (None, why they could not be).
 
-        From the first few motions the linear calibration and the pose family can settle on a wrong branch that the
-        tracks then fit (seen: a realistic 720p Panda 1.84 rad and 379 mm off for three motions from the family,
-        1-sigma 0.03 rad and 62 mm; a 720p iiwa 115 mm off from the linear pose, chi-square of the truth 35). Where
-        the robot's outlines are at hand and cannot be fitted near it (``OutlineMismatchError``), the pose is refused
-        rather than reported or chained from; the outlines' rescue may then try. Any other failure of the outlines
-        says nothing against the pose (None, "").
+        Without outline images: (None, None). The adjustment goes on from where the last one ended. Its
+        ``OutlineMismatchError`` refuses a first pose in ``update``: from the first few motions the linear
+        calibration and the pose family can settle on a wrong branch that the tracks then fit (seen: a realistic
+        720p Panda 1.84 rad and 379 mm off for three motions from the family, 1-sigma 0.03 rad and 62 mm; a 720p
+        iiwa 115 mm off from the linear pose, chi-square of the truth 35). Any other failure says nothing against
+        the pose.
         """
         if self.outlines is None or not self.outlines.n_images:
-            return None, ""
+            return None, None
         last = self.state.outline
         try:
             return self.outlines.fuse(refined.T_camera_base, refined.covariance,
-                                      last.T_camera_base if last is not None else None), ""
-        except OutlineMismatchError as exc:
-            source = "the two-axis pose family" if start == "family" else "the linear calibration"
-            return None, f"the first pose, from {source}, is refused by the robot's outlines: {exc}"
-        except (ArcCalibError, np.linalg.LinAlgError):
-            return None, ""
+                                      last.T_camera_base if last is not None else None), None
+        except (ArcCalibError, np.linalg.LinAlgError) as exc:
+            return None, exc
 
     def _screen_track_set(self, live: list[int]) -> TrackSet:
         """A subsample of motions ``live``'s tracks for ``screen_start``: evenly spaced tracks and frames."""
