@@ -73,6 +73,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
+from arc_env.bench.capture import stored_capture
 from arc_env.bench.episodes import (
     EpisodeSpec,
     EpisodeStore,
@@ -81,7 +82,7 @@ from arc_env.bench.episodes import (
     padded_curve,
     write_figures,
 )
-from arc_env.bench.runner import add_runner_arguments, run_from_arguments
+from arc_env.bench.runner import add_runner_arguments, check_runner_arguments, run_from_arguments
 from arc_env.robot.library import DEFAULT_ROBOT, ROBOT_NAMES, parse_robot_names
 from arc_env.robot.session import OUTLINE_FRAMES
 from arc_env.sim.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M
@@ -249,6 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="write the figures to this file")
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
+    check_runner_arguments(parser, args)
     if args.quick:
         args.poses, args.seeds, args.motions, args.width, args.height = 2, 1, 10, 960, 540
     try:
@@ -258,8 +260,6 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(exc))
     if args.stored_only and args.store is None:
         parser.error("--stored-only reads the episodes of --store DIR")
-    if args.replay_from is not None and not args.replay_from.is_dir():
-        parser.error(f"--replay-from: no store at {args.replay_from}")
     if args.beside_clean and args.realism == "clean":
         parser.error("--beside-clean adds clean painted runs beside --realism realistic; --realism is already clean")
     nested = args.robots is not None or args.sizes is not None or args.beside_clean
@@ -295,8 +295,8 @@ def main(argv: list[str] | None = None) -> int:
         replayed = set()
         if args.replay_from is not None:  # render nothing: replay what the source captured and --store lacks
             source = EpisodeStore(args.replay_from)
-            todo = [spec for spec in specs.values() if store.get(spec) is None and source.get(spec) is not None
-                    and source.capture_path(spec).is_file()]
+            todo = [spec for spec in specs.values()
+                    if store.get(spec) is None and stored_capture(source, spec) is not None]
             replayed = set(run_from_arguments(todo, args, show)) if todo else set()
         records = {spec: record for spec in specs.values() if (record := store.get(spec)) is not None}
         for spec, record in records.items():

@@ -35,7 +35,7 @@ from arc_env.bench.episodes import (
     padded_curve,
     write_figures,
 )
-from arc_env.bench.runner import add_runner_arguments, run_from_arguments
+from arc_env.bench.runner import add_runner_arguments, check_runner_arguments, run_from_arguments
 from arc_env.sim.env import PAPER_ROTATION_RAD, PAPER_TRANSLATION_M
 
 PLANNERS = ("random", "informed")
@@ -91,6 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     add_study_outline_argument(parser, 0)  # 0: the tracks alone, as the stored comparison
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
+    check_runner_arguments(parser, args)
     specs = {(name, pose, seed): EpisodeSpec(name, pose, seed, args.motions, args.width, args.height,
                                              realism=args.realism, appearance=args.appearance,
                                              background=args.background, outline_frames=args.outline_frames)

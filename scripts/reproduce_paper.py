@@ -45,7 +45,7 @@ from arc_env.bench.episodes import (
     write_figures,
 )
 from arc_env.bench.poses import benchmark_camera_pose
-from arc_env.bench.runner import add_runner_arguments, run_from_arguments
+from arc_env.bench.runner import add_runner_arguments, check_runner_arguments, run_from_arguments
 from arc_env.robot.overlay import mask_iou
 from arc_env.sim.env import ArcCalibEnv, EnvConfig
 from arc_env.sim.scene import SceneConfig
@@ -237,6 +237,7 @@ def main(argv: list[str] | None = None) -> int:
     add_study_outline_argument(parser, 0)  # 0: the tracks alone, as the stored study
     add_runner_arguments(parser)
     args = parser.parse_args(argv)
+    check_runner_arguments(parser, args)
     if args.quick:
         args.poses, args.seeds, args.motions, args.width, args.height, args.iou_configs = 2, 1, 10, 960, 540, 5
     methods = list(dict.fromkeys(m.strip() for m in args.methods.split(",") if m.strip()))

@@ -29,6 +29,7 @@ from arc_env.bench.episodes import (
     bench_calibrator_config,
     capturable,
     code_version,
+    fresh_solver_fields,
     note_calibrator,
     note_state,
     run_arc_episode,
@@ -45,7 +46,7 @@ from solver.outline_fusion import OutlineImage
 from solver.pipeline import CalibrationState, Calibrator, CalibratorConfig
 
 __all__ = ["CallRecorder", "Capture", "CapturedOutline", "capture_episode", "episode_task", "load_capture", "replay",
-           "rescore", "run_and_capture", "save_capture"]
+           "rescore", "run_and_capture", "save_capture", "stored_capture"]
 
 
 @dataclass(frozen=True)
@@ -75,8 +76,7 @@ class CapturedOutline:
         grey = cv2.imdecode(np.frombuffer(self.png, np.uint8), cv2.IMREAD_GRAYSCALE)
         if grey is None:
             raise InvalidInputError("a captured outline frame does not decode")
-        found = outline_image(grey, self.q)
-        return OutlineImage(found.edges, found.q, self.group)
+        return outline_image(grey, self.q, self.group)
 
 
 @dataclass(frozen=True)
@@ -174,6 +174,12 @@ def capture_episode(spec: EpisodeSpec) -> Capture:
     return run_and_capture(spec)[1]
 
 
+def stored_capture(source: EpisodeStore, spec: EpisodeSpec) -> tuple[dict[str, Any], Path] | None:
+    """``spec``'s record in ``source`` and the path of its capture there, or None unless it has both."""
+    record, path = source.get(spec), source.capture_path(spec)
+    return (record, path) if record is not None and path.is_file() else None
+
+
 def episode_task(spec: EpisodeSpec, capture_root: Path | None = None,
                  replay_from: Path | None = None) -> dict[str, Any]:
     """One study episode's record (``arc_env.bench.episodes.run_episodes``' task): replayed when it can be, else run.
@@ -182,11 +188,9 @@ def episode_task(spec: EpisodeSpec, capture_root: Path | None = None,
     the solver of this checkout (``rescore``). Otherwise the episode is run, and with ``capture_root`` (a store's
     directory) a tracked ARC-Calib episode's capture is written there (``EpisodeStore.capture_path``).
     """
-    if replay_from is not None:
-        source = EpisodeStore(replay_from)
-        record, path = source.get(spec), source.capture_path(spec)
-        if record is not None and path.is_file():
-            return rescore(record, load_capture(path))
+    stored = stored_capture(EpisodeStore(replay_from), spec) if replay_from is not None else None
+    if stored is not None:
+        return rescore(stored[0], load_capture(stored[1]))
     if capture_root is None or not capturable(spec):
         return run_episode(spec)
     record, capture = run_and_capture(spec)
@@ -236,10 +240,7 @@ def rescore(record: dict[str, Any], capture: Capture) -> dict[str, Any]:
     if len(capture.calls) != len(record["curve"]):
         raise InvalidInputError(f"{spec.key}: the capture holds {len(capture.calls)} motions, the record "
                                 f"{len(record['curve'])}")
-    out = copy.deepcopy(record)
-    for name in ("curve", "std_curve", "chi2_curve", "error_curve", "covariance_curve", "outline_curve"):
-        out[name] = []
-    out.update(false_convergence=0, outline_note="", converged_at=None, T_camera_base=None)
+    out = {**copy.deepcopy(record), **fresh_solver_fields()}
     calibrator = _calibrator(capture, bench_calibrator_config())
     started = time.perf_counter()
     for observation, update, outlines in capture.calls:

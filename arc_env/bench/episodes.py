@@ -281,6 +281,13 @@ def bench_calibrator_config() -> CalibratorConfig:
     return CalibratorConfig(conics_always=True)
 
 
+def fresh_solver_fields() -> dict[str, Any]:
+    """A record's per-motion solver fields before its first motion (``note_state`` adds to them)."""
+    return {"curve": [], "std_curve": [], "chi2_curve": [], "error_curve": [], "covariance_curve": [],
+            "false_convergence": 0, "outline_curve": [], "outline_note": "", "converged_at": None,
+            "T_camera_base": None}
+
+
 def note_state(record: dict[str, Any], state: CalibrationState, T_true: FloatArray) -> None:
     """Add the calibration ``state`` after an episode's next motion to ``record``'s per-motion solver fields.
 
@@ -322,12 +329,9 @@ def run_arc_episode(spec: EpisodeSpec, watch: Callable[[Any], Callable[[], None]
     # "report": the solver's time on the conic front end for the benchmark's report alone (``conics_always``),
     # moved out of "solver", which is then what the default settings spend
     seconds = dict.fromkeys(("render", "tracking", "solver", "transit", "planning", "report"), 0.0)
-    record: dict[str, Any] = {"spec": asdict(spec), "commit": code_version(), "curve": [], "planning": [],
-                              "frames": 0, "converged_at": None, "refused": 0, "in_collision": 0,
-                              "T_camera_base": None, "note": "", "tracks": [], "full_tracks": [],
-                              "std_curve": [], "chi2_curve": [], "error_curve": [], "covariance_curve": [],
-                              "false_convergence": 0, "outline_curve": [],
-                              "outline_note": ""}
+    record: dict[str, Any] = {"spec": asdict(spec), "commit": code_version(), "planning": [], "frames": 0,
+                              "refused": 0, "in_collision": 0, "note": "", "tracks": [], "full_tracks": [],
+                              **fresh_solver_fields()}
     env, obs = make_env(spec)
     try:
         ended = watch(env) if watch is not None else None

@@ -21,7 +21,7 @@ from arc_env.sim.background import BACKGROUNDS
 from arc_env.sim.imaging import APPEARANCES, REALISMS
 from solver.errors import InvalidInputError
 
-__all__ = ["add_runner_arguments", "run_from_arguments", "study_task"]
+__all__ = ["add_runner_arguments", "check_runner_arguments", "run_from_arguments", "study_task"]
 
 
 def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,13 +55,13 @@ def add_runner_arguments(parser: argparse.ArgumentParser) -> None:
                              "again; episodes it has no capture of are run")
 
 
-def study_task(store: EpisodeStore | None, keep_captures: bool = False,
+def study_task(store_root: Path | None, keep_captures: bool = False,
                replay_from: Path | None = None) -> Callable[[EpisodeSpec], dict[str, Any]]:
     """The task that gives a study's records (``run_episodes``' ``task``).
 
     Args:
-        store: where the records go.
-        keep_captures: write each tracked ARC-Calib episode's capture into ``store`` too
+        store_root: the store's directory, where the records go (None: no store).
+        keep_captures: write each tracked ARC-Calib episode's capture into the store too
             (``EpisodeStore.capture_path``, ``arc_env.bench.capture``), to replay it later.
         replay_from: a store (directory) of earlier records kept with their captures: the episodes it has both of
             are replayed through this checkout's solver instead of rendered again.
@@ -70,17 +70,30 @@ def study_task(store: EpisodeStore | None, keep_captures: bool = False,
         InvalidInputError: captures kept without a store, a ``replay_from`` that is not a directory, or replayed
             records that would go to the store they are replayed from.
     """
-    if keep_captures and store is None:
+    if keep_captures and store_root is None:
         raise InvalidInputError("keeping captures needs a store (--store DIR)")
     if replay_from is not None:
         if not Path(replay_from).is_dir():
             raise InvalidInputError(f"no store to replay from at {replay_from}")
-        if store is None or Path(replay_from).resolve() == store.root.resolve():
+        if store_root is None or Path(replay_from).resolve() == Path(store_root).resolve():
             raise InvalidInputError("replayed records go to a store of their own (--store DIR, not the one replayed)")
     if not keep_captures and replay_from is None:
         return run_episode
-    return functools.partial(episode_task, capture_root=store.root if keep_captures and store is not None else None,
+    return functools.partial(episode_task, capture_root=Path(store_root) if keep_captures and store_root else None,
                              replay_from=None if replay_from is None else Path(replay_from))
+
+
+def _args_task(args: argparse.Namespace) -> Callable[[EpisodeSpec], dict[str, Any]]:
+    """``study_task`` of the options ``add_runner_arguments`` parsed."""
+    return study_task(args.store, getattr(args, "keep_captures", False), getattr(args, "replay_from", None))
+
+
+def check_runner_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """``parser.error`` (exit 2) when the options that ``add_runner_arguments`` parsed do not go together."""
+    try:
+        _args_task(args)
+    except InvalidInputError as exc:
+        parser.error(str(exc))
 
 
 def run_from_arguments(specs: Iterable[EpisodeSpec], args: argparse.Namespace,
@@ -88,6 +101,6 @@ def run_from_arguments(specs: Iterable[EpisodeSpec], args: argparse.Namespace,
                        ) -> dict[EpisodeSpec, dict[str, Any]]:
     """``run_episodes`` with the store, workers, Ray cluster and captures that ``add_runner_arguments`` parsed."""
     ray_address = RAY_LOCAL if getattr(args, "ray", False) else getattr(args, "ray_address", None)
-    store = EpisodeStore(args.store) if args.store else None
-    task = study_task(store, getattr(args, "keep_captures", False), getattr(args, "replay_from", None))
-    return run_episodes(specs, store, args.workers, on_record, ray_address, task)
+    task = _args_task(args)
+    return run_episodes(specs, EpisodeStore(args.store) if args.store else None, args.workers, on_record, ray_address,
+                        task)

@@ -87,9 +87,9 @@ def motion_refusal_reason(robot: RobotModel, checker: CollisionChecker, min_delt
 OUTLINE_FRAMES = 3
 
 
-def outline_image(grey: ImageArray, q: FloatArray) -> OutlineImage:
+def outline_image(grey: ImageArray, q: FloatArray, group: int = 0) -> OutlineImage:
     """The outline stage's image of a grey frame (H, W) uint8 taken with the arm at q (n,) rad: its edges."""
-    return OutlineImage(image_edges(grey), q, 0)
+    return OutlineImage(image_edges(grey), q, group)
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ SOLVER_FIELDS = ("curve", "std_curve", "chi2_curve", "error_curve", "covariance_
 def kept(tmp_path_factory):
     """A store holding SPEC's record and, from the same run, its capture."""
     store = EpisodeStore(tmp_path_factory.mktemp("kept"))
-    run_episodes([SPEC], store, task=study_task(store, keep_captures=True))
+    run_episodes([SPEC], store, task=study_task(store.root, keep_captures=True))
     return store
 
 
@@ -80,7 +80,7 @@ def test_a_replayed_study_rewrites_the_solvers_fields_of_the_same_record(kept, t
     seen = []
     dest = EpisodeStore(tmp_path / "replayed")
     replayed = run_episodes([SPEC], dest, on_record=lambda r, s: seen.append(s),
-                            task=study_task(dest, replay_from=kept.root))[SPEC]
+                            task=study_task(dest.root, replay_from=kept.root))[SPEC]
     assert seen == [False] and dest.get(SPEC) == replayed
     for name in SOLVER_FIELDS:  # the solver has not changed: its fields come out the same
         _assert_same(original[name], replayed[name])
@@ -95,9 +95,9 @@ def test_a_replayed_study_rewrites_the_solvers_fields_of_the_same_record(kept, t
 def test_a_replay_refuses_what_does_not_belong_together(kept, capture, tmp_path):
     original = kept.get(SPEC)
     with pytest.raises(InvalidInputError, match="own"):
-        study_task(kept, replay_from=kept.root)
+        study_task(kept.root, replay_from=kept.root)
     with pytest.raises(InvalidInputError, match="no store"):
-        study_task(EpisodeStore(tmp_path / "d"), replay_from=tmp_path / "missing")
+        study_task(tmp_path / "d", replay_from=tmp_path / "missing")
     with pytest.raises(InvalidInputError, match="needs a store"):
         study_task(None, keep_captures=True)
     other = copy.deepcopy(original)
