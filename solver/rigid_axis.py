@@ -882,18 +882,27 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         if not config.relative_pose_if_needed or best is None or best[5] < usable:  # (best: the loop's below)
             yield from _relative_pose(uv, frames, angles, focal, config)
 
-    best = None
+    def fitted(a0: FloatArray, p0: FloatArray) -> tuple[float, FloatArray, FloatArray, _Tracks, FloatArray, int] | None:
+        try:
+            return _fit_from_start(uv, deltas, a0, p0, focal, config, noise_px)
+        except np.linalg.LinAlgError:  # a start whose normal equations went singular: no fit from it
+            singular.append(1)
+            return None
+
+    best, singular = None, []
     for a0, p0 in _line_starts([predicted] if predicted is not None else []):
-        fit = _fit_from_start(uv, deltas, a0, p0, focal, config, noise_px)
-        if fit[5] >= usable and fit[1] @ a0 >= np.cos(config.predicted_angle):
+        fit = fitted(a0, p0)
+        if fit is not None and fit[5] >= usable and fit[1] @ a0 >= np.cos(config.predicted_angle):
             best = fit
     from_prediction = best is not None
     for a0, p0 in candidates() if best is None else ():
-        fit = _fit_from_start(uv, deltas, a0, p0, focal, config, noise_px)
-        if best is None or fit[0] < best[0]:
+        fit = fitted(a0, p0)
+        if fit is not None and (best is None or fit[0] < best[0]):
             best = fit
-        if best[5] >= config.enough_inlier_fraction * n_fit:
+        if best is not None and best[5] >= config.enough_inlier_fraction * n_fit:
             break
+    if best is None and singular:
+        raise DegenerateMotionError(f"rigid front end: the fit from each of {len(singular)} starts went singular")
     if best is None:
         raise DegenerateMotionError(
             f"rigid front end: no two frames {config.min_pair_angle} rad apart share "

@@ -541,3 +541,34 @@ def test_one_pixel_of_noise_still_gives_the_axis():
     assert fit.track_inliers[:30].sum() >= 27
     # the limit: at this noise a slow slide (25 px/rad) partly hides in another depth, and some pass
     assert fit.track_inliers[30:].sum() <= 5
+
+
+def _singular_first(monkeypatch, fails: int) -> None:
+    """The first ``fails`` starts' fits raise numpy's LinAlgError, as a singular Schur complement does."""
+    original = rigid_axis_module._fit_from_start
+    calls = {"n": 0}
+
+    def flaky(*args):
+        calls["n"] += 1
+        if calls["n"] <= fails:
+            raise np.linalg.LinAlgError("Singular matrix")
+        return original(*args)
+
+    monkeypatch.setattr(rigid_axis_module, "_fit_from_start", flaky)
+
+
+def test_a_start_whose_fit_goes_singular_is_skipped(monkeypatch):
+    # Seen 2026-11-29 on a realistic Panda sweep: LinAlgError escaped Calibrator.add_motion from one start.
+    point = np.array([0.05, -0.1, 1.1])
+    obs, axis = _scene(3, np.array([0.3, 1.0, 0.2]), point)
+    _singular_first(monkeypatch, 1)
+    fit = rigid_axis_of_motion(obs, CAMERA, predicted=(axis, point / np.linalg.norm(point)))
+    assert _angle(fit.axis_cam, axis) < np.radians(0.5)
+    assert not fit.from_prediction  # the predicted start was the singular one; another start gave the fit
+
+
+def test_every_start_singular_is_a_degenerate_motion(monkeypatch):
+    obs, _ = _scene(3, np.array([0.3, 1.0, 0.2]), np.array([0.05, -0.1, 1.1]))
+    _singular_first(monkeypatch, 10**6)
+    with pytest.raises(DegenerateMotionError, match="singular"):
+        rigid_axis_of_motion(obs, CAMERA)
