@@ -31,7 +31,7 @@ from solver import (
 )
 from solver.calibration import AxisCorrespondence, family_offsets, pose_family
 from solver.camera import pixels_from_camera_points
-from solver.errors import OutlineMismatchError
+from solver.errors import InsufficientMotionsError, OutlineMismatchError
 from solver.outline_fusion import OutlineAdjustment, OutlineFusionConfig, OutlineImage
 from solver.outlines import ImageEdges
 from solver.pipeline import CONICS_NOT_RIGID, CONICS_NOT_RUN, FOCAL_SCALE_TOLERANCE
@@ -810,3 +810,52 @@ def test_a_rescue_whose_outlines_fit_loosely_gives_no_pose(monkeypatch):
     s = cal.state
     assert s.T_camera_base is None and s.start == ""
     assert "they fit their edges too loosely there (residual scale 3.00 px, at most 1)" in s.outline_note
+
+
+def test_a_first_pose_whose_outlines_fit_loosely_is_refused_at_any_count(monkeypatch):
+    """From six motions on the fusion itself no longer refuses a loose fit; a first pose (linear) still needs the
+    outlines to fit their edges near it (seen: a family start 347 mm off fused at motion 6, 1-sigma 0.6 mm)."""
+    real = OutlineAdjustment.fuse
+
+    def loose(self, *args, **kwargs):
+        return replace(real(self, *args, **kwargs), sigma_px=3.0)
+
+    monkeypatch.setattr(OutlineAdjustment, "fuse", loose)
+    rng = np.random.default_rng(1)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=20),
+                           rng)
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(rigid_axis=None), contours=_sphere_contours)
+    messages = []
+    for _ in range(8):
+        motion = scene.random_motion(rng)
+        cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
+        messages.append(cal.state.message)
+    s = cal.state
+    assert s.T_camera_base is None and cal._refined is None and cal.outlines.n_groups >= 6
+    assert "at the first pose (residual scale 3.00 px, at most 1)" in messages[-1]
+
+
+def test_after_a_rescue_a_first_pose_the_outlines_do_not_vouch_for_is_refused():
+    """The outlines rescued the pose (joints 1-3 alone); then motions of every joint give the tracks a first pose of
+    their own. Outlines that disagree with it (made to, here) refuse it and the rescue goes on from its last pose;
+    without a rescue before, such a failure says nothing against a first pose (``_fuse_outlines``)."""
+    cal, T, scene, rng = _shoulder_rescue()
+    assert cal.state.start == "outlines"
+
+    def disagree(refined):
+        return None, InsufficientMotionsError("the outlines disagree with the tracks (made to, by the test)")
+
+    cal._fuse_outlines = disagree
+    refusals, starts = 0, []
+    for _ in range(3):
+        motion = scene.random_motion(rng)
+        cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
+        refusals += "is refused by the robot's outlines: the outlines disagree" in cal.state.message
+        starts.append(cal.state.start)
+    assert refusals > 0 and cal._refined is None
+    assert set(starts) <= {"outlines", ""}
+    s = cal.state
+    if s.T_camera_base is not None:
+        rot, trans = pose_errors(s.T_camera_base, T)
+        assert rot < NOISY_ROT and trans < NOISY_TRANS
