@@ -38,12 +38,14 @@ from arc_env.sim.imaging import APPEARANCES, REALISMS  # noqa: E402
 #: (``max_window_dissimilarity`` off); "quadratic": the quadratic warp on a uniform window; "cold-lk": LK searching
 #: every pyramid level from rest at each step instead of from the track's last step
 #: (``TrackerConfig.predicted_max_level`` off); "still-window": tracks whose detection window stays still while
-#: they move are dropped (``TrackerConfig.max_static_fraction`` 0.6).
+#: they move are dropped (``TrackerConfig.max_static_fraction`` 0.6); "no-shading-ramp": the patch fit allows only
+#: the brightness offset and gain to change, not a linear ramp across the patch (``TrackerConfig.shading_ramp`` off).
 SETTINGS = {"default": TrackerConfig(), "affine": TrackerConfig(window_sigma_px=0.0),
             "cold-lk": TrackerConfig(predicted_max_level=None),
             "gaussian-weighted-check": TrackerConfig(max_window_dissimilarity=1e9),
             "quadratic": TrackerConfig(quadratic_warp=True, window_sigma_px=0.0),
-            "still-window": TrackerConfig(max_static_fraction=0.6)}
+            "still-window": TrackerConfig(max_static_fraction=0.6),
+            "no-shading-ramp": TrackerConfig(shading_ramp=False)}
 
 
 def score(scene: Any, seen: list[SeenMotion], tracker: TrackerConfig) -> list[MotionTruth]:  # noqa: ANN401
