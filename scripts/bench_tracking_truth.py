@@ -5,7 +5,9 @@ tracker, then tracks its rendered sweeps with every setting and scores each moti
 projections of the surface points they started on (``arc_env.bench.tracking_truth``): all settings see the
 same frames (an episode per setting would not: the random planner's image test reads the estimate, which the
 tracks change). Prints per tracker setting the medians over motions and, with --json PATH, writes
-{setting: summary} (``tracking_truth.summary``'s keys).
+{setting: summary} (``tracking_truth.summary``'s keys). With --calibrate each setting's tracks also go to a fresh
+calibrator as the episode's (its outline images too): the pose's error after each motion (``"calibration"``: rotation
+rad, translation m, or None before a pose), printed at 10 motions and at the last.
 
 Example (about 2 min): python scripts/bench_tracking_truth.py --realism clean --size 1280x720 --motions 8
 """
@@ -31,6 +33,7 @@ from arc_env.robot.library import ROBOT_NAMES  # noqa: E402
 from arc_env.robot.session import SeenMotion  # noqa: E402
 from arc_env.robot.tracking import TrackerConfig, track_keypoints  # noqa: E402
 from arc_env.sim.imaging import APPEARANCES, REALISMS  # noqa: E402
+from solver.frames import pose_errors  # noqa: E402
 
 #: "default": the tracker as shipped (the affine patch fit on a window weighted by a 4 px Gaussian,
 #: ``TrackerConfig.window_sigma_px``, with the whole window's check); "affine": on a uniform window;
@@ -54,6 +57,26 @@ def score(scene: Any, seen: list[SeenMotion], tracker: TrackerConfig) -> list[Mo
             for m in seen if m.frames is not None]
 
 
+def calibrated(session: Any, T_true: np.ndarray, seen: list[SeenMotion],  # noqa: ANN401 (a CalibrationSession)
+               tracker: TrackerConfig) -> list[list[float] | None]:
+    """Per motion, the pose's (rotation rad, translation m) error against T_true (4, 4), or None, re-tracked.
+
+    The episode's motions tracked with ``tracker`` into a fresh calibrator (``session.reset``: the episode's
+    settings) with their outline images.
+    """
+    session.reset()
+    errors: list[list[float] | None] = []
+    for m in seen:
+        if m.frames is None:
+            continue
+        tracks = track_keypoints(m.frames, np.asarray(m.deltas), tracker).tracks
+        session.observe(m.q_start, m.joint, tracks,
+                        outlines=session.outline_images(m.q_start, m.joint, np.asarray(m.deltas), m.frames))
+        T = session.calibrator.state.T_camera_base
+        errors.append(None if T is None else list(pose_errors(T, T_true)))
+    return errors
+
+
 def _show(value: float | None, fmt: str) -> str:
     return "-" if value is None else format(value, fmt)
 
@@ -68,6 +91,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--motions", type=int, default=8, help="motions per episode (default 8)")
     parser.add_argument("--settings", default="affine,default", help=f"comma list of {sorted(SETTINGS)}")
+    parser.add_argument("--calibrate", action="store_true",
+                        help="also calibrate from each setting's tracks (and the outlines): error at 10 and at the end")
     parser.add_argument("--json", type=Path, help="write the summaries to this file")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
@@ -82,16 +107,24 @@ def main() -> None:
     try:
         seen = rendered_motions(env, obs, spec)
         scored = {name: score(env.scene, seen, SETTINGS[name]) for name in names}
+        poses = ({name: calibrated(env.session, env.T_camera_base_true, seen, SETTINGS[name]) for name in names}
+                 if args.calibrate else {})
     finally:
         env.close()
-    print(f"{'setting':<10} {'motions':>7} {'tracks':>7} {'on links':>8} {'end px':>7} {'<=1px':>6} {'chord':>12}")
+    print(f"{'setting':<16} {'motions':>7} {'tracks':>7} {'on links':>8} {'end px':>7} {'<=1px':>6} {'chord':>12}")
     for name in names:
         results[name] = summary(scored[name])
         r = results[name]
         chord = None if r["chord_scale_median"] is None else r["chord_scale_median"] * 1e3
-        print(f"{name:<10} {r['motions']:>7} {_show(r['tracks_median'], '.0f'):>7} "
+        print(f"{name:<16} {r['motions']:>7} {_show(r['tracks_median'], '.0f'):>7} "
               f"{_show(r['on_links_median'], '.0f'):>8} {_show(r['end_error_px_median'], '.2f'):>7} "
               f"{_show(r['within_1px_median'], '.2f'):>6} {_show(chord, '+.2f'):>9} o/oo")
+        if name in poses:
+            r["calibration"] = poses[name]
+            for k in sorted({min(10, len(poses[name])), len(poses[name])}):
+                e = poses[name][k - 1] if k else None
+                print(f"{'':<16} after motion {k}: " + ("no pose" if e is None else
+                                                       f"{e[0]:.2e} rad, {e[1] * 1e3:.2f} mm"))
     if args.json:
         args.json.write_text(json.dumps({"spec": vars(args) | {"json": str(args.json)}, "results": results},
                                         indent=2, default=str))
