@@ -349,8 +349,13 @@ def _geometric_std(refined: RefinementResult) -> FloatArray:
 
 
 def _pose_chi2(a: RefinementResult, b: RefinementResult, covariance: FloatArray) -> float:
-    """xi^T C^-1 xi (inf if C is singular) of xi (6,) = pose_difference(a, b) in ``covariance`` C (6, 6)."""
-    xi = pose_difference(a.T_camera_base, b.T_camera_base)
+    """``_transform_chi2`` of two refinements' poses."""
+    return _transform_chi2(a.T_camera_base, b.T_camera_base, covariance)
+
+
+def _transform_chi2(T_a: FloatArray, T_b: FloatArray, covariance: FloatArray) -> float:
+    """xi^T C^-1 xi (inf if C is singular) of xi (6,) = pose_difference(T_a, T_b) (4, 4) in ``covariance`` C (6, 6)."""
+    xi = pose_difference(T_a, T_b)
     try:
         d2 = float(xi @ np.linalg.solve(covariance, xi))
     except np.linalg.LinAlgError:
@@ -593,17 +598,21 @@ class Calibrator:
                         f"(residual scale {outline.sigma_px:.2f} px, at most {most:g}): it may be far off")
                     outline = None
             outline_note = "" if failure is None else f"{type(failure).__name__}: {failure}"
-            rescued_before = self.state.start == "outlines" and self.state.T_camera_base is not None
-            if first and failure is not None and (isinstance(failure, OutlineMismatchError) or rescued_before):
+            last = self.state
+            rescued_apart = (last.start == "outlines" and last.T_camera_base is not None and last.covariance is not None
+                             and _transform_chi2(refined.T_camera_base, last.T_camera_base, last.covariance)
+                             > FAMILY_SAME_CHI2)
+            if first and failure is not None and (isinstance(failure, OutlineMismatchError) or rescued_apart):
                 # A first pose the outlines cannot fit near: refused, neither reported nor chained from
                 # (``_fuse_outlines``; from six motions on, the fusion's residual scale read here: seen, a realistic
                 # 720p iiwa's family start 347 mm off at motion 6 fused with a 1-sigma of 0.6 mm); the outlines'
                 # rescue may then try. After an update the outlines rescued,
-                # a first pose they do not vouch for (they disagree with it, or cannot judge it yet) is refused
-                # too: the rescue goes on from its last pose (seen: a realistic 720p iiwa rescued 0.6 mm off at
-                # motion 3, then a family start 341 mm off at 4 with the outlines 14.9 sigma away, chained from
-                # to motion 7; a realistic 720p Panda rescued 0.9 mm off to motion 6, a linear start 338 mm off
-                # at 7).
+                # a first pose they do not vouch for (they disagree with it, or cannot judge it yet) that lies
+                # outside the rescued pose's region (its covariance: a wide first pose may hold the rescued pose in
+                # its own, 338 mm off) is refused too: the rescue goes on from its
+                # last pose (seen: a realistic 720p iiwa rescued 0.6 mm off at motion 3, then a family start 341 mm
+                # off at 4 with the outlines 14.9 sigma away, chained from to motion 7; a realistic 720p Panda
+                # rescued 0.9 mm off to motion 6, a linear start 338 mm off at 7). One inside that region goes on.
                 source = "the two-axis pose family" if start_kind == "family" else "the linear calibration"
                 why = f"the first pose, from {source}, is refused by the robot's outlines: {failure}"
                 refined, self._from_family, outline_note = None, False, ""
