@@ -51,27 +51,28 @@ SETTINGS = {"default": TrackerConfig(), "affine": TrackerConfig(window_sigma_px=
             "no-shading-ramp": TrackerConfig(shading_ramp=False)}
 
 
-def score(scene: Any, seen: list[SeenMotion], tracker: TrackerConfig) -> list[MotionTruth]:  # noqa: ANN401
-    """Track every seen motion's frames with ``tracker`` and score the tracks against the truth."""
-    return [motion_truth(scene, replace(m, tracks=track_keypoints(m.frames, np.asarray(m.deltas), tracker).tracks))
+def retracked(seen: list[SeenMotion], tracker: TrackerConfig) -> list[SeenMotion]:
+    """The seen motions that have frames, their tracks replaced by ``tracker``'s of those frames."""
+    return [replace(m, tracks=track_keypoints(m.frames, np.asarray(m.deltas), tracker).tracks)
             for m in seen if m.frames is not None]
 
 
-def calibrated(session: Any, T_true: np.ndarray, seen: list[SeenMotion],  # noqa: ANN401 (a CalibrationSession)
-               tracker: TrackerConfig) -> list[list[float] | None]:
-    """Per motion, the pose's (rotation rad, translation m) error against T_true (4, 4), or None, re-tracked.
+def score(scene: Any, motions: list[SeenMotion]) -> list[MotionTruth]:  # noqa: ANN401
+    """Every motion's tracks scored against the truth."""
+    return [motion_truth(scene, m) for m in motions]
 
-    The episode's motions tracked with ``tracker`` into a fresh calibrator (``session.reset``: the episode's
-    settings) with their outline images.
+
+def calibrated(session: Any, T_true: np.ndarray, motions: list[SeenMotion],  # noqa: ANN401 (a CalibrationSession)
+               outlines: list[list[Any]]) -> list[list[float] | None]:
+    """Per motion, the pose's (rotation rad, translation m) error against T_true (4, 4), or None.
+
+    The motions' tracks and their ``outlines`` (per motion, ``session.outline_images``) go into a fresh calibrator
+    (``session.reset``: the episode's settings).
     """
     session.reset()
     errors: list[list[float] | None] = []
-    for m in seen:
-        if m.frames is None:
-            continue
-        tracks = track_keypoints(m.frames, np.asarray(m.deltas), tracker).tracks
-        session.observe(m.q_start, m.joint, tracks,
-                        outlines=session.outline_images(m.q_start, m.joint, np.asarray(m.deltas), m.frames))
+    for m, images in zip(motions, outlines, strict=True):
+        session.observe(m.q_start, m.joint, m.tracks, outlines=images)
         T = session.calibrator.state.T_camera_base
         errors.append(None if T is None else list(pose_errors(T, T_true)))
     return errors
@@ -106,9 +107,13 @@ def main() -> None:
     env, obs = make_env(spec)
     try:
         seen = rendered_motions(env, obs, spec)
-        scored = {name: score(env.scene, seen, SETTINGS[name]) for name in names}
-        poses = ({name: calibrated(env.session, env.T_camera_base_true, seen, SETTINGS[name]) for name in names}
-                 if args.calibrate else {})
+        motions = {name: retracked(seen, SETTINGS[name]) for name in names}
+        scored = {name: score(env.scene, motions[name]) for name in names}
+        poses = {}
+        if args.calibrate:  # the outline images depend on the frames alone: found once for every setting
+            outlines = [env.session.outline_images(m.q_start, m.joint, np.asarray(m.deltas), m.frames)
+                        for m in seen if m.frames is not None]
+            poses = {name: calibrated(env.session, env.T_camera_base_true, motions[name], outlines) for name in names}
     finally:
         env.close()
     print(f"{'setting':<16} {'motions':>7} {'tracks':>7} {'on links':>8} {'end px':>7} {'<=1px':>6} {'chord':>12}")
