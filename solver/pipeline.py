@@ -590,13 +590,11 @@ class Calibrator:
             t_refined = time.perf_counter()
             outline, failure = self._fuse_outlines(refined)
             first = start_kind in ("family", "linear") and self._refined is None
-            if first and outline is not None and self.outlines is not None:
-                most = self.outlines.config.max_early_sigma_px
-                if outline.sigma_px > most:  # as the rescue's: nothing else vouches for a first pose, at any count
-                    failure = OutlineMismatchError(
-                        f"from {outline.n_groups} motions the outlines fit their edges too loosely at the first pose "
-                        f"(residual scale {outline.sigma_px:.2f} px, at most {most:g}): it may be far off")
-                    outline = None
+            loose = self._loose_fit(outline) if first and outline is not None else ""
+            if loose:  # as the rescue's: nothing else vouches for a first pose, at any count
+                failure = OutlineMismatchError(f"from {outline.n_groups} motions the outlines fit their edges too "
+                                               f"loosely at the first pose ({loose}): it may be far off")
+                outline = None
             outline_note = "" if failure is None else f"{type(failure).__name__}: {failure}"
             last = self.state
             rescued_apart = (last.start == "outlines" and last.T_camera_base is not None and last.covariance is not None
@@ -746,10 +744,9 @@ class Calibrator:
             fused = self.outlines.fuse(held.T_camera_base, held.covariance, start, free_direction=u)
         except (ArcCalibError, np.linalg.LinAlgError) as exc:
             return None, f"{prefix}: {type(exc).__name__}: {exc}"
-        most = self.outlines.config.max_early_sigma_px
-        if fused.sigma_px > most:
-            return None, (f"{prefix}: they fit their edges too loosely there (residual scale {fused.sigma_px:.2f} px, "
-                          f"at most {most:g})")
+        loose = self._loose_fit(fused)
+        if loose:
+            return None, f"{prefix}: they fit their edges too loosely there ({loose})"
         # From three to five motions the tracks' covariance is too narrow in the directions they fix best (their
         # motion clusters are too few; measured: chi-square of the truth 11-44 over 5 dof): the outlines' own
         # covariance bounds the rescued pose's from below (then 0.8-5.9 over 6 dof where the fusion's was 1-40).
@@ -758,6 +755,16 @@ class Calibrator:
         if not (np.all(std[:3] <= cfg.max_std_rotation) and np.all(std[3:] <= cfg.max_std_translation)):
             return None, f"{prefix}: together they leave a 1-sigma of {np.round(std, 4).tolist()} (rad, m)"
         return fused, ""
+
+    def _loose_fit(self, fusion: OutlineFusion) -> str:
+        """Why ``fusion``'s outlines fit their edges too loosely to vouch for a pose alone, or "" when they do not.
+
+        A first pose and a rescued pose need this at any motion count (the fusion checks it below
+        ``trusted_groups`` only): their residuals' robust scale at most ``OutlineFusionConfig.max_early_sigma_px``.
+        """
+        assert self.outlines is not None
+        most = self.outlines.config.max_early_sigma_px
+        return "" if fusion.sigma_px <= most else f"residual scale {fusion.sigma_px:.2f} px, at most {most:g}"
 
     def _store_batch(self, live: list[int], tracks: TrackSet, refined: RefinementResult) -> None:
         """Keep a bundle adjustment over every motion ``live``: its points, inlier counts and summaries' order."""
@@ -983,8 +990,8 @@ class Calibrator:
         ``OutlineMismatchError`` refuses a first pose in ``update``: from the first few motions the linear
         calibration and the pose family can settle on a wrong branch that the tracks then fit (seen: a realistic
         720p Panda 1.84 rad and 379 mm off for three motions from the family, 1-sigma 0.03 rad and 62 mm; a 720p
-        iiwa 115 mm off from the linear pose, chi-square of the truth 35). Any other failure says nothing against
-        the pose.
+        iiwa 115 mm off from the linear pose, chi-square of the truth 35). Any other failure refuses a first pose
+        only when it lies outside a pose the outlines rescued in the last update (``update``).
         """
         if self.outlines is None or not self.outlines.n_images:
             return None, None

@@ -882,14 +882,17 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         if not config.relative_pose_if_needed or best is None or best[5] < usable:  # (best: the loop's below)
             yield from _relative_pose(uv, frames, angles, focal, config)
 
+    singular = 0  # starts whose normal equations went singular: no fit from them
+
     def fitted(a0: FloatArray, p0: FloatArray) -> tuple[float, FloatArray, FloatArray, _Tracks, FloatArray, int] | None:
+        nonlocal singular
         try:
             return _fit_from_start(uv, deltas, a0, p0, focal, config, noise_px)
-        except np.linalg.LinAlgError:  # a start whose normal equations went singular: no fit from it
-            singular.append(1)
+        except np.linalg.LinAlgError:
+            singular += 1
             return None
 
-    best, singular = None, []
+    best = None
     for a0, p0 in _line_starts([predicted] if predicted is not None else []):
         fit = fitted(a0, p0)
         if fit is not None and fit[5] >= usable and fit[1] @ a0 >= np.cos(config.predicted_angle):
@@ -902,7 +905,7 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         if best is not None and best[5] >= config.enough_inlier_fraction * n_fit:
             break
     if best is None and singular:
-        raise DegenerateMotionError(f"rigid front end: the fit from each of {len(singular)} starts went singular")
+        raise DegenerateMotionError(f"rigid front end: the fit from each of {singular} starts went singular")
     if best is None:
         raise DegenerateMotionError(
             f"rigid front end: no two frames {config.min_pair_angle} rad apart share "

@@ -798,8 +798,8 @@ def _refine_affine(image: ImageArray, live: _LiveTracks, guess: NDArray[np.float
             going = active[leaving]
             whole = None
             if live.rim_template.shape[1]:  # the whole window against the first patch at a plain offset and the gain
-                rim = raw[leaving] - raw[leaving].mean(axis=1, keepdims=True)
-                whole = rim / gain[leaving] - live.rim_template[going]
+                rim = raw[leaving]
+                whole = (rim - rim.mean(axis=1, keepdims=True)) / gain[leaving] - live.rim_template[going]
             rms[going] = _dissimilarity(error[leaving], live.scale[going], live.window_scale[going], root, config,
                                         whole)
         valid[active[~sane]] = False
