@@ -296,7 +296,7 @@ class OutlineAdjustment:
         self._images.append(_Cached(image))
 
     def fuse(self, T_prior: FloatArray, covariance_prior: FloatArray, T_start: FloatArray | None = None,
-             free_direction: FloatArray | None = None) -> OutlineFusion:
+             free_direction: FloatArray | None = None, start_covariance: FloatArray | None = None) -> OutlineFusion:
         """The pose that fits the tracks' estimate (a Gaussian prior) and every image's outlines.
 
         Args:
@@ -308,6 +308,9 @@ class OutlineAdjustment:
                 has searched (``search_along``: T_start is its best pose): the prior's reach is judged with it fixed
                 (the prior's covariance conditioned on it: its marginal keeps whatever of the direction's metres of
                 variance the rest shares), and images from ``min_groups_along`` motions suffice.
+            start_covariance: (6, 6) float64: T_start's own covariance, when the start is known better than the
+                prior (a pose the outlines fixed in an earlier update): the pairing's reach is judged by it instead
+                of the prior's (the nearest edges are no guess from a start that fit them closely).
 
         Raises:
             InvalidInputError: a non-rigid pose, a covariance that is not finite, symmetric positive definite, or a
@@ -329,6 +332,10 @@ class OutlineAdjustment:
             w = np.concatenate([np.zeros(3), _unit(free_direction)])
             Q = np.eye(6) - np.outer(w, w)
             reach = np.linalg.pinv(Q @ P0 @ Q, rcond=1e-10, hermitian=True)
+        if start_covariance is not None:
+            if T_start is None:
+                raise InvalidInputError("a start covariance needs its start")
+            reach = _symmetric(start_covariance, "the start covariance")
         self._require_groups(self.config.min_groups if free_direction is None else self.config.min_groups_along)
         T = T0 if T_start is None else check_transform(np.asarray(T_start, dtype=np.float64), "T_start")
         return self._fuse(T0, P0, T, reach)

@@ -548,10 +548,16 @@ class Calibrator:
         refined: RefinementResult | None = None
         start_kind: Start = ""
         start = self._refined.T_camera_base if self._refined is not None else None
-        if start is None and linear is not None:
+        # After an update the outlines rescued, the tracks' adjustment starts from the rescued pose (which fit the
+        # edges closely), not from the linear pose (seen: a realistic 720p iiwa rescued 0.5 mm off at motion 4, its
+        # linear pose at 5 then refused outside the rescued region, and no pose at 5).
+        rescued_start = start is None and self.state.start == "outlines" and self.state.T_camera_base is not None
+        if rescued_start:
+            start = self.state.T_camera_base
+        elif start is None and linear is not None:
             start = linear.T_camera_base
         tracks: TrackSet | None = None
-        ran = False  # a bundle adjustment from the previous or linear pose converged (its covariance may be too wide)
+        ran = False  # an adjustment from the previous, rescued or linear pose converged (its covariance may be wide)
         if cfg.refine and start is not None and self._from_family and linear is not None:
             # A family start's chain against the linear start, on every motion: the better fit goes on.
             tracks = self._track_set(live)
@@ -569,7 +575,7 @@ class Calibrator:
                     self._store_batch(live, tracks, refined)
             else:
                 ran = True
-            start_kind = "previous" if self._refined is not None else "linear"
+            start_kind = "previous" if self._refined is not None or rescued_start else "linear"
         # The family when there is no pose to start from, or the adjustment could not run from the linear one
         # (e.g. a wrong branch that puts the tracks behind the camera); not when it ran and the motions do not
         # fix the pose: no other start changes that.
@@ -589,7 +595,7 @@ class Calibrator:
             refined = self._without_weak_motions(refined)
             t_refined = time.perf_counter()
             outline, failure = self._fuse_outlines(refined)
-            first = start_kind in ("family", "linear") and self._refined is None
+            first = self._refined is None  # a first pose: from the linear pose, the family or a rescued pose
             loose = self._loose_fit(outline) if first and outline is not None else ""
             if loose:  # as the rescue's: nothing else vouches for a first pose, at any count
                 failure = OutlineMismatchError(f"from {outline.n_groups} motions the outlines fit their edges too "
@@ -611,7 +617,9 @@ class Calibrator:
                 # last pose (seen: a realistic 720p iiwa rescued 0.6 mm off at motion 3, then a family start 341 mm
                 # off at 4 with the outlines 14.9 sigma away, chained from to motion 7; a realistic 720p Panda
                 # rescued 0.9 mm off to motion 6, a linear start 338 mm off at 7). One inside that region goes on.
-                source = "the two-axis pose family" if start_kind == "family" else "the linear calibration"
+                source = ("the two-axis pose family" if start_kind == "family"
+                          else "the tracks' adjustment from the rescued pose" if rescued_start
+                          else "the linear calibration")
                 why = f"the first pose, from {source}, is refused by the robot's outlines: {failure}"
                 refined, self._from_family, outline_note = None, False, ""
                 message = f"{message}; {why}" if message else why
@@ -996,9 +1004,13 @@ class Calibrator:
         if self.outlines is None or not self.outlines.n_images:
             return None, None
         last = self.state.outline
+        # From the last fused (or rescued) pose the pairing's reach is judged by that pose's covariance: the tracks'
+        # own may still be too wide for it (seen: a realistic 720p iiwa's 8.2 px RMS at motion 5, where the pose the
+        # outlines rescued at 4 was 0.5 mm off; and 8.8 px at 13 after a fused pose 0.7 mm off at 12).
         try:
             return self.outlines.fuse(refined.T_camera_base, refined.covariance,
-                                      last.T_camera_base if last is not None else None), None
+                                      last.T_camera_base if last is not None else None,
+                                      start_covariance=self.state.covariance if last is not None else None), None
         except (ArcCalibError, np.linalg.LinAlgError) as exc:
             return None, exc
 

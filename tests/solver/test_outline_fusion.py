@@ -173,6 +173,22 @@ def test_a_prior_too_uncertain_to_pair_by_is_refused(edges):
     assert _adjustment(edges, OutlineFusionConfig()).fuse(T_TRUE, near).n_groups == 6
 
 
+def test_a_start_the_outlines_fixed_before_judges_the_reach(edges):
+    """A vague prior (1-sigma 20 cm) cannot be paired by, but from a start whose own covariance is tight (a pose the
+    outlines fixed in an earlier update) the nearest edges are no guess: the fusion runs from it and lands on the
+    truth; the start's covariance needs its start."""
+    start = perturb(T_TRUE, START / 10)  # 0.8 mm and 0.2 mrad off
+    tight = np.diag([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3]) ** 2
+    adjustment = _adjustment(edges, OutlineFusionConfig())
+    with pytest.raises(InsufficientMotionsError, match="too uncertain for the outlines"):
+        adjustment.fuse(perturb(T_TRUE, START), VAGUE, start)
+    fused = adjustment.fuse(perturb(T_TRUE, START), VAGUE, start, start_covariance=tight)
+    assert np.linalg.norm(pose_difference(fused.T_camera_base, T_TRUE)[3:]) < 1e-4
+    assert _chi2(fused.T_camera_base, fused.covariance) < 22.5
+    with pytest.raises(InvalidInputError, match="needs its start"):
+        adjustment.fuse(T_TRUE, VAGUE, start_covariance=tight)
+
+
 def test_outlines_that_disagree_with_the_tracks_are_refused(edges):
     prior = perturb(T_TRUE, np.array([0, 0, 0, 0, 0, 0.02]))  # 20 mm off with a 1-sigma of 0.1 mm
     with pytest.raises(InsufficientMotionsError, match="disagree"):
