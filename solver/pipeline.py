@@ -551,9 +551,10 @@ class Calibrator:
         # After an update the outlines rescued, the tracks' adjustment starts from the rescued pose (which fit the
         # edges closely), not from the linear pose (seen: a realistic 720p iiwa rescued 0.5 mm off at motion 4, its
         # linear pose at 5 then refused outside the rescued region, and no pose at 5).
-        rescued_start = start is None and self.state.start == "outlines" and self.state.T_camera_base is not None
+        rescued = self._rescued_pose()
+        rescued_start = start is None and rescued is not None
         if rescued_start:
-            start = self.state.T_camera_base
+            start = rescued
         elif start is None and linear is not None:
             start = linear.T_camera_base
         tracks: TrackSet | None = None
@@ -602,10 +603,9 @@ class Calibrator:
                                                f"loosely at the first pose ({loose}): it may be far off")
                 outline = None
             outline_note = "" if failure is None else f"{type(failure).__name__}: {failure}"
-            last = self.state
-            rescued_apart = (last.start == "outlines" and last.T_camera_base is not None and last.covariance is not None
-                             and _transform_chi2(refined.T_camera_base, last.T_camera_base, last.covariance)
-                             > FAMILY_SAME_CHI2)
+            rescued_cov = self.state.covariance  # the last update's: the rescued pose's, when there is one
+            rescued_apart = (rescued is not None and rescued_cov is not None
+                             and _transform_chi2(refined.T_camera_base, rescued, rescued_cov) > FAMILY_SAME_CHI2)
             if first and failure is not None and (isinstance(failure, OutlineMismatchError) or rescued_apart):
                 # A first pose the outlines cannot fit near: refused, neither reported nor chained from
                 # (``_fuse_outlines``; from six motions on, the fusion's residual scale read here: seen, a realistic
@@ -698,9 +698,8 @@ class Calibrator:
         if self.outlines.n_groups < self.outlines.config.min_groups_along:
             return None, ""
         joints = np.array([self._motions[k].point_base for k in live])
-        starts = []
-        if self.state.start == "outlines" and self.state.T_camera_base is not None:
-            starts.append(self.state.T_camera_base)
+        rescued = self._rescued_pose()
+        starts = [] if rescued is None else [rescued]
         if linear is not None:
             starts.append(linear.T_camera_base)
         elif len(with_axis) >= 2:
@@ -763,6 +762,10 @@ class Calibrator:
         if not (np.all(std[:3] <= cfg.max_std_rotation) and np.all(std[3:] <= cfg.max_std_translation)):
             return None, f"{prefix}: together they leave a 1-sigma of {np.round(std, 4).tolist()} (rad, m)"
         return fused, ""
+
+    def _rescued_pose(self) -> FloatArray | None:
+        """The last update's pose (4, 4) when the outlines rescued it (``_outline_rescue``), else None."""
+        return self.state.T_camera_base if self.state.start == "outlines" else None
 
     def _loose_fit(self, fusion: OutlineFusion) -> str:
         """Why ``fusion``'s outlines fit their edges too loosely to vouch for a pose alone, or "" when they do not.
