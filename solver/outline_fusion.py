@@ -27,17 +27,21 @@ differs from the part). What guards it:
   (light from one side: the shaded side's edges move in, the lit side's do not; an image shift, which moves
   the pose sideways). On a realistic 960x540 Panda episode (8 motions, 24 images) the fit was 0.6 / 1.1 / 2.4 mm
   off (x, y, depth) with 1-sigma 0.17 / 0.13 / 2.0 mm from the common offset alone (chi-square 255), and
-  0.94 / 0.96 / 2.0 mm with all three (chi-square 8.0);
+  0.94 / 0.96 / 2.0 mm with all three (chi-square 8.0). 0.3 px each until stop 52, now 0.2 px (below);
 - the edges' shift towards the brighter side (``OutlineFusionConfig.polarity_offset_px``) is estimated with the pose
   and eliminated (its Schur complement): where a casting darkens towards its outline, the image's edge lies a
   fraction of a pixel off it, out where the background is brighter and in where the robot is. Measured on captured
   realistic episodes (Sobel's edges): the estimate 0.11-0.52 px, and the error after 8-25 motions 0.75 -> 0.49 mm
   median over ten runs (a far 720p Panda view 2.87 -> 1.60 mm, 1-sigma 3.44 -> 2.80 mm);
-- a floor (``OutlineFusionConfig.floor_px``): the outlines fix the pose no better than to a 0.1 px RMS displacement
-  of their contour points, in any direction. Measured on two episodes, outline-only chi-square of the truth
-  without / with it: a clean painted 960x540 recording (9 motions, 27 images) 40.7 / 0.4, the realistic one above
-  7.4 / 1.1; the combined pose then weighs the tracks more where the outlines are overconfident, and its error
-  went 0.71 -> 0.48 mm and 2.22 -> 1.74 mm;
+- a floor (``OutlineFusionConfig.floor_px``): the outlines fix the pose no better than to a 0.07 px RMS displacement
+  of their contour points, in any direction (0.1 px until stop 52). Measured on two episodes, outline-only chi-square
+  of the truth without / with it: a clean painted 960x540 recording (9 motions, 27 images) 40.7 / 0.4, the realistic
+  one above 7.4 / 1.1; the combined pose then weighs the tracks more where the outlines are overconfident, and its
+  error went 0.71 -> 0.48 mm and 2.22 -> 1.74 mm. Measured again once the brighter-side shift was estimated (60
+  captured realistic 720p episodes of three arms, 346 updates at motions 5-25; ``docs/realistic-imaging.md``, stop
+  52): with a floor of 0.1 px and offsets of 0.3 px the outlines' own estimate lay at a median chi-square of 0.28-1.12
+  per arm (5.35 over 6 dof is honest), its depth error 0.46 of its 1-sigma (RMS). Since then 0.07 px and 0.2 px:
+  0.60-2.41, depth 0.65, the depth's 1-sigma 1.22 -> 0.85 mm (median), 99.7 % inside the 95 % region both ways;
 - the outlines' pose must agree with the tracks' (Mahalanobis distance under the sum of both covariances below
   ``OutlineFusionConfig.max_disagreement_chi2``), else the outlines are not used and the reason is given.
 """
@@ -151,9 +155,9 @@ class OutlineFusionConfig:
     repair_px: float = 0.25
     renders: int = 3
     gauss_newton_steps: int = 4
-    edge_offset_px: float = 0.3
+    edge_offset_px: float = 0.2
     polarity_offset_px: float = 0.5
-    floor_px: float = 0.1
+    floor_px: float = 0.07
     max_prior_px: float = 8.0
     min_groups: int = 3
     trusted_groups: int = 6
