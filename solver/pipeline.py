@@ -716,6 +716,10 @@ class Calibrator:
             fused, why = self._rescue_from(T, live, joints, tracks)
             if fused is not None:
                 return fused, ""
+        if rescued is not None and tracks is not None:
+            fused, why = self._rescue_near(rescued, tracks)
+            if fused is not None:
+                return fused, ""
         return None, why
 
     def _rescue_from(self, T: FloatArray, live: list[int], joints: FloatArray, tracks: TrackSet
@@ -751,6 +755,37 @@ class Calibrator:
             fused = self.outlines.fuse(held.T_camera_base, held.covariance, start, free_direction=u)
         except (ArcCalibError, np.linalg.LinAlgError) as exc:
             return None, f"{prefix}: {type(exc).__name__}: {exc}"
+        return self._accepted_rescue(fused, prefix)
+
+    def _rescue_near(self, T: FloatArray, tracks: TrackSet) -> tuple[OutlineFusion | None, str]:
+        """The outlines' rescue from the last rescued pose T (4, 4): (the fusion, "") or (None, why not).
+
+        Tried when the rescue along one free direction (``_rescue_from``) fails from every start. The tracks'
+        adjustment held at T by a weak prior in every direction (``refine``'s ``free_direction``: the identity), so
+        whatever the kept tracks leave free stays free in its covariance (when they leave nothing free, nothing to
+        rescue: their own pose was judged); the outlines' adjustment from T with that pose and covariance as the
+        prior, their pairing's reach judged by T's covariance (it fit the edges). Seen: a realistic 720p xArm 6
+        rescued under 1 mm off at motion 9 whose tracks' adjustment dropped every track of its two joint-5 motions
+        at 10 as outliers, leaving three directions free: the one-direction rescue then had singular equations, and
+        no pose came until the linear one at 13.
+        """
+        assert self.outlines is not None
+        prefix = "the outlines could not fix what the tracks leave free from the rescued pose"
+        cfg = self.config
+        try:
+            held = refine(tracks, T, cfg.refinement, free_direction=np.eye(6))
+            std = np.sqrt(np.diag(held.covariance))
+            if np.all(std[:3] <= cfg.max_std_rotation) and np.all(std[3:] <= cfg.max_std_translation):
+                # every direction's variance is at most 6 times the largest diagonal one: nothing is left free
+                return None, f"{prefix}: the tracks leave no direction free there (their own pose was judged)"
+            fused = self.outlines.fuse(held.T_camera_base, held.covariance, T, start_covariance=self.state.covariance)
+        except (ArcCalibError, np.linalg.LinAlgError) as exc:
+            return None, f"{prefix}: {type(exc).__name__}: {exc}"
+        return self._accepted_rescue(fused, prefix)
+
+    def _accepted_rescue(self, fused: OutlineFusion, prefix: str) -> tuple[OutlineFusion | None, str]:
+        """A rescue's fusion with its covariance bounded below by the outlines' own, or (None, why it is refused)."""
+        cfg = self.config
         loose = self._loose_fit(fused)
         if loose:
             return None, f"{prefix}: they fit their edges too loosely there ({loose})"

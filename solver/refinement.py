@@ -885,6 +885,24 @@ def summaries_prior(summaries: Sequence[MotionSummary], T0: FloatArray, s0: floa
     return PosePrior(np.asarray(H, dtype=np.float64), np.asarray(g, dtype=np.float64), float(c))
 
 
+def _symmetric_inverse(S: FloatArray) -> FloatArray:
+    """The inverse (n, n) of a symmetric positive definite S (n, n) from its eigen-decomposition.
+
+    Symmetric to rounding and positive definite however far apart S's eigenvalues lie (a weak prior on the
+    directions the tracks leave free beside their information on the rest: a condition number near 1e10). An LU
+    inverse is not symmetric there (seen: entries 5e-6 apart across the diagonal where the largest is 93 and the
+    smallest variance 1.7e-8), and a Cholesky reads one triangle: ``conservative_covariance`` then found its model
+    covariance not positive definite (a realistic 720p xArm 6, an adjustment held in every direction).
+
+    Raises:
+        np.linalg.LinAlgError: S is not positive definite.
+    """
+    lam, V = np.linalg.eigh(0.5 * (S + S.T))
+    if not lam[0] > 0:
+        raise np.linalg.LinAlgError("the information matrix is not positive definite")
+    return (V / lam) @ V.T
+
+
 def summaries_covariance(summaries: Sequence[MotionSummary], prior_row: FloatArray | None = None,
                          T0: FloatArray | None = None, s0: float | None = None,
                          motion_clusters: bool = True, motion_jackknife: bool = True,
@@ -927,7 +945,7 @@ def summaries_covariance(summaries: Sequence[MotionSummary], prior_row: FloatArr
     T = sum(m.n_tracks for m in summaries)
     n_par = 3 * T + S.shape[0]
     sigma2 = sum(m.rss for m in summaries) / max(m_res - n_par, 1)
-    S_inv = np.linalg.inv(S)
+    S_inv = _symmetric_inverse(S)
     dof = m_res / max(m_res - n_par, 1)
     C = T / max(T - 1, 1) * dof * S_inv @ meat @ S_inv
     cov = conservative_covariance(sigma2 * S_inv, 0.5 * (C + C.T))
@@ -1123,6 +1141,19 @@ def track_observability(tracks: TrackSet, T_camera_base: FloatArray,
 GAUGE_PX_PER_UNIT = 0.1
 
 
+def _free_projector(free_direction: FloatArray) -> FloatArray:
+    """The orthogonal projector (6, 6) onto the span of (6,) or (k, 6) directions, or InvalidInputError."""
+    w = np.asarray(free_direction, dtype=np.float64)
+    w = w.reshape(1, -1) if w.ndim == 1 else w
+    if w.ndim != 2 or w.shape[1] != 6 or not 1 <= w.shape[0] <= 6 or not np.all(np.isfinite(w)):
+        raise InvalidInputError("the free directions must be a finite (6,) or (k, 6) array, 1 <= k <= 6")
+    Q, R = np.linalg.qr(w.T)  # (6, k), (k, k)
+    diag = np.abs(np.diag(R))
+    if diag.min() <= 1e-9 * max(float(diag.max()), 1e-300):
+        raise InvalidInputError("the free directions must be non-zero and independent")
+    return Q @ Q.T
+
+
 def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None = None,
            points_init: FloatArray | None = None, free_direction: FloatArray | None = None) -> RefinementResult:
     """Bundle-adjust T_camera_base and the track points, starting from ``T_init``.
@@ -1139,14 +1170,15 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
         points_init: (T, 3) float64, m: starting points; triangulated from ``T_init`` if None. Given (a warm
             start), the robust pass also ends when the pose stands still (``robust_pose_tol``).
         free_direction: (6,) a direction of (omega, tau) that the tracks may leave free (the depth of joints whose
-            axes meet in one point): a weak prior (``GAUGE_PX_PER_UNIT``) holds the pose along it where each pass
-            starts, so that the adjustment and its covariance exist; the covariance says the rest honestly and,
-            along it, that it is free (metres). Schur backend only.
+            axes meet in one point), or (k, 6) k <= 6 independent ones (e.g. the identity: whatever the kept tracks
+            leave free): a weak prior (``GAUGE_PX_PER_UNIT``) holds the pose along them where each pass starts, so
+            that the adjustment and its covariance exist; the covariance says the rest honestly and, along them,
+            that they are free (metres). Schur backend only.
 
     Raises:
         InsufficientMotionsError: fewer than two tracks survive triangulation or outlier removal.
         InvalidInputError: the time offset is to be estimated but a track carries no joint velocity; a free
-            direction with the scipy backend, or not a finite non-zero (6,) array.
+            direction with the scipy backend, or not finite (6,) / (k, 6) independent directions.
         TimeOffsetError: the estimated time offset is beyond ``time_offset_bound_s``.
     """
     config = config or RefinementConfig()
@@ -1154,13 +1186,9 @@ def refine(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig | None
         raise InvalidInputError("T_init contains NaN or infinite values")
     gauge = None
     if free_direction is not None:
-        w = np.asarray(free_direction, dtype=np.float64).reshape(-1)
-        if w.shape != (6,) or not np.all(np.isfinite(w)) or np.linalg.norm(w) == 0:
-            raise InvalidInputError("the free direction must be a finite non-zero (6,) array")
+        gauge = GAUGE_PX_PER_UNIT**2 * _free_projector(free_direction)
         if config.backend != "schur":
             raise InvalidInputError("a free direction needs backend='schur' (scipy's takes no pose prior)")
-        w = w / np.linalg.norm(w)
-        gauge = GAUGE_PX_PER_UNIT**2 * np.outer(w, w)
     tracks = replace(tracks, free_rates=np.ones(tracks.n_tracks, bool) if config.free_rates == "all" else None)
     estimate = config.estimate_time_offset
     if estimate is None:

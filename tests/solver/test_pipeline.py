@@ -894,3 +894,62 @@ def test_after_a_rescue_the_tracks_adjustment_starts_from_the_rescued_pose():
     assert rot < NOISY_ROT and trans < NOISY_TRANS
     xi = pose_difference(s.T_camera_base, T)
     assert xi @ np.linalg.solve(s.covariance, xi) < CHI2_6_999
+
+
+def test_when_the_rescue_along_one_direction_fails_the_rescued_pose_is_rescued_again(monkeypatch):
+    """After a rescue, an update whose one-direction rescue (``_rescue_from``) fails from every start (the tracks
+    it keeps leave more than one direction free) is rescued from the last rescued pose with every direction held
+    weakly (``_rescue_near``): a pose that holds the truth, not none."""
+    cal, T, scene, rng = _shoulder_rescue()
+    assert cal.state.start == "outlines"
+
+    def failing(start, *args):
+        return None, "the outlines could not fix what the tracks leave free: forced by the test"
+
+    near = []
+    real_near = cal._rescue_near
+
+    def spy(start, tracks):
+        near.append(start.copy())
+        return real_near(start, tracks)
+
+    monkeypatch.setattr(cal, "_rescue_from", failing)
+    monkeypatch.setattr(cal, "_rescue_near", spy)
+    rescued = cal.state.T_camera_base.copy()
+    motion = scene.random_motion(rng, joints=(0, 1, 2))
+    cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
+    s = cal.state
+    assert len(near) == 1 and np.array_equal(near[0], rescued)
+    assert (s.stage, s.start, s.converged) == ("refined", "outlines", False), (s.message, s.outline_note)
+    rot, trans = pose_errors(s.T_camera_base, T)
+    assert rot < NOISY_ROT and trans < NOISY_TRANS
+    xi = pose_difference(s.T_camera_base, T)
+    assert xi @ np.linalg.solve(s.covariance, xi) < CHI2_6_999
+
+
+def test_the_rescue_near_the_rescued_pose_fixes_what_one_joint_leaves_free():
+    """One joint's motions alone leave several directions of the pose free: the adjustment held along the weakest
+    one has singular equations, the one held weakly in every direction (``_rescue_near``) does not, and with the
+    outlines it gives a pose that holds the truth."""
+    cal, T, scene, rng = _shoulder_rescue()
+    assert cal.state.start == "outlines"
+    saved = cal.state
+    rescued = saved.T_camera_base.copy()
+    first = len(cal._motions)
+    for _ in range(2):
+        motion = scene.random_motion(rng, joints=(0,))
+        cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
+    own = [k for k in range(first, len(cal._motions)) if cal._motions[k] is not None]
+    assert len(own) == 2
+    tracks = cal._track_set(own)
+    ratio, weakest = pipeline.track_observability(tracks, rescued)
+    assert ratio < 1e-6
+    with pytest.raises((np.linalg.LinAlgError, InvalidInputError)):
+        pipeline.refine(tracks, rescued, cal.config.refinement, free_direction=weakest)
+    cal.state = saved  # the rescued pose and its covariance, as the update after the rescue sees them
+    fused, why = cal._rescue_near(rescued, tracks)
+    assert fused is not None, why
+    rot, trans = pose_errors(fused.T_camera_base, T)
+    assert rot < NOISY_ROT and trans < NOISY_TRANS
+    xi = pose_difference(fused.T_camera_base, T)
+    assert xi @ np.linalg.solve(fused.covariance, xi) < CHI2_6_999

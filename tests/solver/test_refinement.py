@@ -19,6 +19,7 @@ from solver.refinement import (
     _BlockOperator,
     _Problem,
     _solve,
+    _symmetric_inverse,
     _trf_subspace,
     _Whitened,
     build_track_set,
@@ -447,6 +448,57 @@ def test_track_observability_finds_the_free_depth_of_axes_through_one_point():
     keep[:4] = True  # one motion's tracks alone: its own axis's depth is free
     assert track_observability(build_track_set(free.motions, FOCAL), free.T_true, keep)[0] < 1e-6
 
+
+
+def test_symmetric_inverse_is_symmetric_and_positive_definite_however_ill_conditioned():
+    """Eigenvalues 1e-2 (a weak prior on free directions) beside 1e6-6e7 (what the tracks fix), 50 random
+    orientations: the inverse is symmetric, its lower triangle alone positive definite (what a Cholesky reads,
+    as scipy's generalized eigh in ``conservative_covariance`` does) and each direction's variance 1 / its
+    eigenvalue (built from the known rotation). An LU inverse (``np.linalg.inv``) fails the Cholesky on most."""
+    lam = np.array([1e-2, 1e-2, 1e-2, 1e6, 1.5e6, 6e7])
+    lu_fails = 0
+    for seed in range(50):
+        V = np.linalg.qr(np.random.default_rng(seed).normal(size=(6, 6)))[0]
+        S = (V * lam) @ V.T
+        S_inv = _symmetric_inverse(S)
+        assert np.abs(S_inv - S_inv.T).max() <= 1e-12 * np.abs(S_inv).max()
+        np.linalg.cholesky(S_inv)
+        assert np.allclose(np.einsum("ij,jk,ki->i", V.T, S_inv, V), 1.0 / lam, rtol=1e-5, atol=0.0)
+        try:
+            np.linalg.cholesky(np.linalg.inv(S))
+        except np.linalg.LinAlgError:
+            lu_fails += 1
+    assert lu_fails > 25  # measured: 157 of 200 orientations
+    V = np.linalg.qr(np.random.default_rng(0).normal(size=(6, 6)))[0]
+    with pytest.raises(np.linalg.LinAlgError):
+        _symmetric_inverse((V * np.array([-1e-3, 1, 1, 1, 1, 1])) @ V.T)
+
+
+def test_refine_held_in_every_direction_frees_only_what_the_tracks_leave_free():
+    """Axes through one point leave the depth free: held weakly in every direction (the identity), the adjustment
+    exists, says the line is free and fixes the rest as when held along the line alone; dependent directions are
+    refused."""
+    pivot = np.array([0.1, -0.05, 0.2])
+    scene = _make_scene(17, n_motions=4, n_tracks=6, n_frames=30, noise_px=NOISE_PX, pivot=pivot)
+    tracks = build_track_set(scene.motions, FOCAL)
+    ray = scene.T_true[:3, :3] @ pivot + scene.T_true[:3, 3]
+    ray /= np.linalg.norm(ray)
+    start = perturb(scene.T_true, np.array([0.002, -0.001, 0.001, 0.001, 0.002, -0.001]))
+    w = np.concatenate([np.zeros(3), ray])
+    line = refine(tracks, start, free_direction=w)
+    every = refine(tracks, start, free_direction=np.eye(6))
+    assert np.sqrt(w @ every.covariance @ w) > 0.5  # free along the line (metres)
+    Q = np.eye(6) - np.outer(w, w)
+    e = Q @ pose_difference(every.T_camera_base, scene.T_true)
+    assert e @ np.linalg.pinv(Q @ every.covariance @ Q, rcond=1e-10) @ e < CHI2_6_999
+    d = Q @ pose_difference(every.T_camera_base, line.T_camera_base)  # the rest as held along the line alone
+    assert np.linalg.norm(d[:3]) < 1e-4 and np.linalg.norm(d[3:]) < 1e-4
+    sd_line, sd_every = (np.sqrt(np.diag(Q @ r.covariance @ Q)) for r in (line, every))
+    assert np.allclose(sd_every, sd_line, rtol=0.05, atol=1e-6)
+    with pytest.raises(InvalidInputError, match="independent"):
+        refine(tracks, start, free_direction=np.stack([w, 2 * w]))
+    with pytest.raises(InvalidInputError, match="free directions"):
+        refine(tracks, start, free_direction=np.eye(7)[:, :6])
 
 def test_refine_held_along_a_free_direction_fixes_the_rest():
     """Axes through one point leave the depth free: held there, the adjustment fixes the rest and says so."""
