@@ -774,8 +774,7 @@ class Calibrator:
         cfg = self.config
         try:
             held = refine(tracks, T, cfg.refinement, free_direction=np.eye(6))
-            std = np.sqrt(np.diag(held.covariance))
-            if np.all(std[:3] <= cfg.max_std_rotation) and np.all(std[3:] <= cfg.max_std_translation):
+            if self._within_std_bounds(np.sqrt(np.diag(held.covariance))):
                 # every direction's variance is at most 6 times the largest diagonal one: nothing is left free
                 return None, f"{prefix}: the tracks leave no direction free there (their own pose was judged)"
             fused = self.outlines.fuse(held.T_camera_base, held.covariance, T, start_covariance=self.state.covariance)
@@ -785,7 +784,6 @@ class Calibrator:
 
     def _accepted_rescue(self, fused: OutlineFusion, prefix: str) -> tuple[OutlineFusion | None, str]:
         """A rescue's fusion with its covariance bounded below by the outlines' own, or (None, why it is refused)."""
-        cfg = self.config
         loose = self._loose_fit(fused)
         if loose:
             return None, f"{prefix}: they fit their edges too loosely there ({loose})"
@@ -794,7 +792,7 @@ class Calibrator:
         # covariance bounds the rescued pose's from below (then 0.8-5.9 over 6 dof where the fusion's was 1-40).
         fused = replace(fused, covariance=conservative_covariance(fused.covariance, fused.outline_covariance))
         std = np.sqrt(np.diag(fused.covariance))
-        if not (np.all(std[:3] <= cfg.max_std_rotation) and np.all(std[3:] <= cfg.max_std_translation)):
+        if not self._within_std_bounds(std):
             return None, f"{prefix}: together they leave a 1-sigma of {np.round(std, 4).tolist()} (rad, m)"
         return fused, ""
 
@@ -887,7 +885,10 @@ class Calibrator:
         with a few motions the jackknife measures how much they disagree, not what they leave free, and it
         would hold back a pose the geometry fixes. The reported covariance and convergence keep it.
         """
-        std = _geometric_std(refined)
+        return self._within_std_bounds(_geometric_std(refined))
+
+    def _within_std_bounds(self, std: FloatArray) -> bool:
+        """Whether a 1-sigma (6,) (rad, m) is finite and within ``max_std_rotation`` / ``max_std_translation``."""
         return bool(np.all(np.isfinite(std)) and np.all(std[:3] <= self.config.max_std_rotation)
                     and np.all(std[3:] <= self.config.max_std_translation))
 
