@@ -885,6 +885,12 @@ def summaries_prior(summaries: Sequence[MotionSummary], T0: FloatArray, s0: floa
     return PosePrior(np.asarray(H, dtype=np.float64), np.asarray(g, dtype=np.float64), float(c))
 
 
+#: ``_symmetric_inverse``: an information matrix whose smallest eigenvalue is at most this fraction of its largest is
+#: singular. Rounding leaves null directions near 1e-15; the weakest held direction seen, the weak prior on the free
+#: directions beside what the tracks fix (``refine``'s ``free_direction``), sits near 1.7e-10.
+SINGULAR_RCOND = 1e-12
+
+
 def _symmetric_inverse(S: FloatArray) -> FloatArray:
     """The inverse (n, n) of a symmetric positive definite S (n, n) from its eigen-decomposition.
 
@@ -894,12 +900,17 @@ def _symmetric_inverse(S: FloatArray) -> FloatArray:
     smallest variance 1.7e-8), and a Cholesky reads one triangle: ``conservative_covariance`` then found its model
     covariance not positive definite (a realistic 720p xArm 6, an adjustment held in every direction).
 
+    S is singular when its smallest eigenvalue is at most ``SINGULAR_RCOND`` times its largest: rounding alone
+    leaves such a direction's eigenvalue at either sign (seen: 9.4e-16 and 9.9e-16 of the largest on four motions whose
+    axes meet in a point, with the depth not held), and its "variance" (there 1.9e5 m) is no estimate.
+
     Raises:
-        np.linalg.LinAlgError: S is not positive definite.
+        np.linalg.LinAlgError: S is not positive definite, or singular to rounding.
     """
     lam, V = np.linalg.eigh(0.5 * (S + S.T))
-    if not lam[0] > 0:
-        raise np.linalg.LinAlgError("the information matrix is not positive definite")
+    if not lam[0] > SINGULAR_RCOND * lam[-1]:
+        raise np.linalg.LinAlgError("the information matrix is not positive definite (singular to rounding: "
+                                    f"smallest eigenvalue {lam[0]:.3g} of the largest {lam[-1]:.3g})")
     return (V / lam) @ V.T
 
 
@@ -1072,9 +1083,11 @@ def conservative_covariance(model: FloatArray, clustered: FloatArray) -> FloatAr
     """The smallest covariance (6, 6) at least as large as both, in the model's eigen-directions.
 
     With C v = l M v (generalized eigenvectors, V^T M V = I), returns M V diag(max(l, 1)) V^T M:
-    ``model`` where the clustered estimate is smaller, the clustered one where it is larger.
+    ``model`` where the clustered estimate is smaller, the clustered one where it is larger. Both are
+    symmetrized first: ``eigh`` reads one triangle, and an inverse by LU leaves them asymmetric by rounding.
     """
-    lam, V = eigh(clustered, model)
+    model = 0.5 * (model + model.T)
+    lam, V = eigh(0.5 * (clustered + clustered.T), model)
     MV = model @ V
     out = MV @ np.diag(np.maximum(lam, 1.0)) @ MV.T
     return 0.5 * (out + out.T)

@@ -375,6 +375,23 @@ def test_conservative_covariance_is_the_larger_in_every_direction():
     np.testing.assert_allclose(conservative_covariance(model, 3.0 * model), 3.0 * model, rtol=1e-9)
 
 
+def test_conservative_covariance_reads_both_triangles():
+    """Inputs asymmetric by rounding (an LU inverse) give the result of their symmetric parts: eigh alone reads one
+    triangle, so a lower triangle 1e-3 off moved the result by that much (a model that lost definiteness there
+    failed its Cholesky)."""
+    rng = np.random.default_rng(7)
+    A, B = rng.normal(size=(6, 6)), rng.normal(size=(6, 6))
+    model, other = A @ A.T + np.eye(6), B @ B.T + 0.1 * np.eye(6)
+    skew = np.tril(rng.normal(size=(6, 6)), -1) * 1e-3
+    expected = conservative_covariance(model, other)
+    out = conservative_covariance(model + skew - skew.T, other - skew + skew.T)
+    np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    # the one-triangle reading it replaces differs by about the skew
+    lower_only = scipy.linalg.eigh(np.tril(other - skew) + np.tril(other - skew, -1).T,
+                                   np.tril(model + skew) + np.tril(model + skew, -1).T)
+    assert not np.allclose(lower_only[0], scipy.linalg.eigh(other, model)[0], rtol=1e-6)
+
+
 def test_pose_information_is_the_inverse_pose_block_from_finite_differences():
     # Independent construction: the full Fisher matrix from a finite-difference Jacobian of the
     # residuals at the truth, inverted, pose block, inverted back (= the Schur complement).
@@ -472,6 +489,9 @@ def test_symmetric_inverse_is_symmetric_and_positive_definite_however_ill_condit
     V = np.linalg.qr(np.random.default_rng(0).normal(size=(6, 6)))[0]
     with pytest.raises(np.linalg.LinAlgError):
         _symmetric_inverse((V * np.array([-1e-3, 1, 1, 1, 1, 1])) @ V.T)
+    # a null direction left at rounding's size (seen: 9.4e-16 of the largest)
+    with pytest.raises(np.linalg.LinAlgError):
+        _symmetric_inverse((V * np.array([1.4e-8, 1.0, 1e3, 1e5, 1e6, 1.4e7])) @ V.T)
 
 
 def test_refine_held_in_every_direction_frees_only_what_the_tracks_leave_free():
