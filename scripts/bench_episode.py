@@ -198,6 +198,26 @@ def coverage_figures(runs: list[dict]) -> dict:
             "chi2_updates_median": float(np.median(updates)) if updates else None, "runs_with_chi2": len(counted)}
 
 
+def bias_figures(runs: list[dict]) -> dict:
+    """The runs' mean final error in the camera frame (estimate - truth) and its spread: a bias the runs share.
+
+    From each run's last ``error_curve`` entry (``solver.frames.pose_difference(estimate, truth)``, negated):
+    ``end_error_mean_camera`` holds ``runs`` (those with an estimate at the end), ``rot_mean_rad`` / ``rot_sd_rad``
+    (3,) and ``trans_mean_m`` / ``trans_sd_m`` (3,) about the optical frame's x right, y down, z forward (the
+    translation is where the estimate puts the base's origin); None without such runs. The mean is a bias when it
+    stands several of its standard errors (sd / sqrt(runs)) from zero. Records without ``error_curve`` are left out.
+    """
+    ends = [r["error_curve"][-1] for r in runs if r.get("error_curve") and r["error_curve"][-1] is not None]
+    if not ends:
+        return {"end_error_mean_camera": None}
+    e = -np.asarray(ends, dtype=np.float64)
+    sd = e.std(axis=0, ddof=1) if len(e) > 1 else np.full(6, np.nan)
+    return {"end_error_mean_camera": {"runs": len(e), "rot_mean_rad": e[:, :3].mean(axis=0).tolist(),
+                                      "rot_sd_rad": [_finite_or_none(x) for x in sd[:3]],
+                                      "trans_mean_m": e[:, 3:].mean(axis=0).tolist(),
+                                      "trans_sd_m": [_finite_or_none(x) for x in sd[3:]]}}
+
+
 def median_target(height: int) -> tuple[float, float] | None:
     """Issue 19's median error target at 25 motions (rad, m) for realistic images ``height`` px high."""
     for min_height, target in REALISTIC_TARGETS_25:
@@ -353,6 +373,7 @@ def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], n_moti
     out["pose_by_5_fraction"] = pose_by_fraction(tracked, POSE_BY, n_motions)
     out.update(convergence_figures(tracked))
     out.update(coverage_figures(tracked))
+    out.update(bias_figures(tracked))
     with_outlines = [r for r in tracked if r["spec"].get("outline_frames")]
     out["outline_runs"] = len(with_outlines)
     out["outline_used_at_end"] = sum(bool(r.get("outline_curve") and r["outline_curve"][-1]) for r in with_outlines)
@@ -391,6 +412,15 @@ def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], n_moti
               f"{out['runs_with_coverage_at_end']} runs, after {out['coverage_95_updates']:.0%} of "
               f"{out['updates_with_coverage']} updates (median chi-square {out['chi2_updates_median']:.2f}; "
               f"{CHI2_6_MEDIAN:.2f} if calibrated, lower: a region wider than the errors)")
+    bias = out["end_error_mean_camera"]
+    if bias is not None and bias["runs"] > 1:
+        se = np.sqrt(bias["runs"])
+        t = "  ".join(f"{a} {m * 1e3:+.2f} +- {s * 1e3 / se:.2f}"
+                      for a, m, s in zip("xyz", bias["trans_mean_m"], bias["trans_sd_m"], strict=True))
+        w = "  ".join(f"{a} {m * 1e6:+.0f} +- {s * 1e6 / se:.0f}"
+                      for a, m, s in zip("xyz", bias["rot_mean_rad"], bias["rot_sd_rad"], strict=True))
+        print(f"mean final error over {bias['runs']} runs, camera frame (estimate - truth; x right, y down, "
+              f"z forward; +- its standard error): translation mm {t}; rotation urad {w}")
     if out["outline_runs"]:
         notes = sorted({r["outline_note"] for r in with_outlines if r.get("outline_note")})
         print(f"the outlines joined the estimate at the end of {out['outline_used_at_end']} of {out['outline_runs']} "

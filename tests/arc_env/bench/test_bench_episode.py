@@ -101,6 +101,32 @@ def test_coverage_counts_the_runs_whose_region_holds_the_truth(script):
     assert script.CHI2_6_MEDIAN == pytest.approx(5.348, abs=1e-3)
 
 
+def test_bias_is_the_mean_of_estimate_minus_truth_in_the_camera_frame(script):
+    """Estimates shifted by known camera-frame offsets and turned by known small rotations (left of the truth), written
+    as the benchmark writes them (``pose_difference(estimate, truth)``): the figure is their mean and spread."""
+    from scipy.spatial.transform import Rotation
+
+    from solver.frames import pose_difference
+    rng = np.random.default_rng(3)
+    T_true = perturb(np.eye(4), np.array([0.3, -0.2, 0.1, 0.05, -0.1, 1.5]))
+    shifts, turns, runs = rng.normal(0, 1e-3, (5, 3)), rng.normal(0, 1e-4, (5, 3)), []
+    for d, w in zip(shifts, turns, strict=True):
+        T_est = T_true.copy()
+        T_est[:3, :3] = Rotation.from_rotvec(w).as_matrix() @ T_true[:3, :3]
+        T_est[:3, 3] += d
+        runs.append({"error_curve": [None, pose_difference(T_est, T_true).tolist()]})
+    runs.append({"error_curve": [None]})  # no estimate at the end
+    runs.append({})  # stored before the figure
+    bias = script.bias_figures(runs)["end_error_mean_camera"]
+    assert bias["runs"] == 5
+    np.testing.assert_allclose(bias["trans_mean_m"], shifts.mean(axis=0), atol=1e-12)
+    np.testing.assert_allclose(bias["trans_sd_m"], shifts.std(axis=0, ddof=1), atol=1e-12)
+    np.testing.assert_allclose(bias["rot_mean_rad"], turns.mean(axis=0), rtol=1e-6)
+    np.testing.assert_allclose(bias["rot_sd_rad"], turns.std(axis=0, ddof=1), rtol=1e-5)
+    assert script.bias_figures(runs[5:]) == {"end_error_mean_camera": None}
+    assert script.bias_figures(runs[:1])["end_error_mean_camera"]["trans_sd_m"] == [None, None, None]
+
+
 def test_figures_leave_out_old_records(script):
     good = [0.001, 0.001]
     runs = [_record([None] * 4 + [good], conics=4, rigid=2, false=2),
