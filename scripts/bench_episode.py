@@ -57,7 +57,10 @@ whose final estimate is usable among ``runs_with_track_counts``; ``usable_fracti
 ``false_convergence_runs``: runs with at least one falsely converged motion. ``coverage_95_at_end``: the share of
 runs whose reported 95 % region held the truth after their last motion, ``coverage_95_updates`` after every update,
 ``chi2_updates_median`` the median chi-square of the truth over those updates (5.35 when the covariance is
-calibrated; lower: wider than the errors) (``coverage_figures``; null without a covariance). Records stored before a
+calibrated; lower: wider than the errors) (``coverage_figures``; null without a covariance).
+``end_error_mean_camera``: the runs' mean final error in the camera frame, estimate - truth, and its spread
+(``bias_figures``: ``runs``, ``rot_mean_rad``, ``rot_sd_rad``, ``trans_mean_m``, ``trans_sd_m``; null without an
+estimate at the end); printed with its standard error, so that a bias the runs share shows. Records stored before a
 figure existed are left out of it; ``runs_with_track_counts``, ``runs_with_front_ends`` and
 ``runs_with_convergence_check`` count the runs that have it. Without ``--robots``, ``--sizes`` and
 ``--beside-clean`` the document is these figures (the Panda, one size, one look); with any of them it is
