@@ -417,10 +417,10 @@ def robot_figures(results: dict[str, list[dict]], checkpoints: list[int], n_moti
               f"{CHI2_6_MEDIAN:.2f} if calibrated, lower: a region wider than the errors)")
     bias = out["end_error_mean_camera"]
     if bias is not None and bias["runs"] > 1:
-        se = np.sqrt(bias["runs"])
-        t = "  ".join(f"{a} {m * 1e3:+.2f} +- {s * 1e3 / se:.2f}"
+        root_n = np.sqrt(bias["runs"])  # the standard error is sd / root_n
+        t = "  ".join(f"{a} {m * 1e3:+.2f} +- {s * 1e3 / root_n:.2f}"
                       for a, m, s in zip("xyz", bias["trans_mean_m"], bias["trans_sd_m"], strict=True))
-        w = "  ".join(f"{a} {m * 1e6:+.0f} +- {s * 1e6 / se:.0f}"
+        w = "  ".join(f"{a} {m * 1e6:+.0f} +- {s * 1e6 / root_n:.0f}"
                       for a, m, s in zip("xyz", bias["rot_mean_rad"], bias["rot_sd_rad"], strict=True))
         print(f"mean final error over {bias['runs']} runs, camera frame (estimate - truth; x right, y down, "
               f"z forward; +- its standard error): translation mm {t}; rotation urad {w}")

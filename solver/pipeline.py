@@ -775,7 +775,7 @@ class Calibrator:
         try:
             held = refine(tracks, T, cfg.refinement, free_direction=np.eye(6))
             if self._within_std_bounds(np.sqrt(np.diag(held.covariance))):
-                # every direction's variance is at most 6 times the largest diagonal one: nothing is left free
+                # every 1-sigma within the usable bounds: nothing is left free
                 return None, f"{prefix}: the tracks leave no direction free there (their own pose was judged)"
             fused = self.outlines.fuse(held.T_camera_base, held.covariance, T, start_covariance=self.state.covariance)
         except (ArcCalibError, np.linalg.LinAlgError) as exc:

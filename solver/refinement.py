@@ -959,7 +959,7 @@ def summaries_covariance(summaries: Sequence[MotionSummary], prior_row: FloatArr
     S_inv = _symmetric_inverse(S)
     dof = m_res / max(m_res - n_par, 1)
     C = T / max(T - 1, 1) * dof * S_inv @ meat @ S_inv
-    cov = conservative_covariance(sigma2 * S_inv, 0.5 * (C + C.T))
+    cov = conservative_covariance(sigma2 * S_inv, C)
     M = len(summaries)
     if motion_clusters and M >= 3:
         H = np.array([m.information for m in summaries])
@@ -967,7 +967,7 @@ def summaries_covariance(summaries: Sequence[MotionSummary], prior_row: FloatArr
         if T0 is not None:
             g = g + np.einsum("mij,mj->mi", H, _summary_offsets(summaries, T0, s0))
         C_motion = M / (M - 1) * dof * S_inv @ (g.T @ g) @ S_inv
-        cov = conservative_covariance(cov, 0.5 * (C_motion + C_motion.T))
+        cov = conservative_covariance(cov, C_motion)
         if motion_jackknife or motion_dispersion:
             q, q_dof = motion_overdispersion(H, g, S, sigma2)
             if q_dof > 0 and q > chi2.ppf(1.0 - JACKKNIFE_TEST_LEVEL, q_dof):

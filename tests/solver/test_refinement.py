@@ -466,7 +466,6 @@ def test_track_observability_finds_the_free_depth_of_axes_through_one_point():
     assert track_observability(build_track_set(free.motions, FOCAL), free.T_true, keep)[0] < 1e-6
 
 
-
 def test_symmetric_inverse_is_symmetric_and_positive_definite_however_ill_conditioned():
     """Eigenvalues 1e-2 (a weak prior on free directions) beside 1e6-6e7 (what the tracks fix), 50 random
     orientations: the inverse is symmetric, its lower triangle alone positive definite (what a Cholesky reads,
@@ -519,6 +518,7 @@ def test_refine_held_in_every_direction_frees_only_what_the_tracks_leave_free():
         refine(tracks, start, free_direction=np.stack([w, 2 * w]))
     with pytest.raises(InvalidInputError, match="free directions"):
         refine(tracks, start, free_direction=np.eye(7)[:, :6])
+
 
 def test_refine_held_along_a_free_direction_fixes_the_rest():
     """Axes through one point leave the depth free: held there, the adjustment fixes the rest and says so."""
