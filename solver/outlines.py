@@ -50,10 +50,13 @@ class ImageEdges:
     Attributes:
         points: (E, 2) float64, pixels: edge positions.
         normals: (E, 2) float64: unit intensity-gradient directions there (dark towards bright).
+        strengths: (E,) float64, grey levels per pixel: the largest difference of neighbouring samples across each
+            edge (its contrast; ``image_edges``), or None where the edges were made otherwise.
     """
 
     points: FloatArray
     normals: FloatArray
+    strengths: FloatArray | None = None
     _tree: cKDTree = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -63,6 +66,11 @@ class ImageEdges:
             raise InvalidInputError("edge points and normals must be finite (E, 2) arrays of one length")
         object.__setattr__(self, "points", points)
         object.__setattr__(self, "normals", normals)
+        if self.strengths is not None:
+            strengths = np.asarray(self.strengths, dtype=np.float64).reshape(-1)
+            if len(strengths) != len(points) or not np.all(np.isfinite(strengths)):
+                raise InvalidInputError("edge strengths must be a finite (E,) array of the points' length")
+            object.__setattr__(self, "strengths", strengths)
         object.__setattr__(self, "_tree", cKDTree(points))
 
     def nearest(self, pixels: FloatArray, max_px: float) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
@@ -85,6 +93,7 @@ def image_edges(grey: ImageArray, low: float = 15.0, high: float = 40.0, sigma_p
     measured at the true pose on realistic Panda, iiwa and xArm 6 frames, the contour-to-edge offset was
     +0.17..+0.48 px (brighter background) / -0.10..-0.39 px (brighter robot) with Sobel's peak, and
     +0.07..+0.30 / -0.08..-0.24 px with the differences' (their scatter 25-50 % smaller; ``docs/realistic-imaging.md``).
+    That largest difference is each edge's strength (``ImageEdges.strengths``, grey levels per pixel).
 
     Args:
         grey: (H, W) uint8 image.
@@ -118,7 +127,7 @@ def image_edges(grey: ImageArray, low: float = 15.0, high: float = 40.0, sigma_p
     shift = np.where(peaked, 0.5 * (behind - ahead) / np.where(peaked, curvature, -1.0), 0.0)
     t = (j - 1.5) + np.clip(shift, -0.5, 0.5)
     points = np.stack([u + t * nx, v + t * ny], axis=1)
-    return ImageEdges(points, np.stack([nx, ny], axis=1).astype(np.float64))
+    return ImageEdges(points, np.stack([nx, ny], axis=1).astype(np.float64), middle.astype(np.float64))
 
 
 @dataclass(frozen=True)
@@ -268,6 +277,7 @@ class EdgePairs:
     in_front: int = 0
     image: NDArray[np.int64] | None = None
     polarity: FloatArray | None = None
+    strength: FloatArray | None = None
 
 
 def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoints], edges: Sequence[ImageEdges],
@@ -284,8 +294,9 @@ def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoi
         return EdgePairs(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)), image=np.zeros(0, np.int64),
                          polarity=np.zeros(0))
     cos_min = np.cos(np.radians(config.max_normal_angle_deg))
-    parts: list[tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int64], FloatArray]] = [
-        (np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0))]
+    parts: list[tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int64], FloatArray, FloatArray]] = [
+        (np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))]
+    strong = all(image.strengths is not None for image in edges)  # every image's edges know their contrast
     # every image's points projected at once (one pose, one camera), then paired image by image
     split = np.cumsum([len(contour.points_base) for contour in contours])[:-1]
     all_points = np.concatenate([contour.points_base for contour in contours])
@@ -299,10 +310,12 @@ def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoi
         along = np.sum(normals * contour.outward, axis=1)
         keep = visible & found & (np.abs(along) >= cos_min)
         sign = np.sign(along[keep])  # the edges' normals point from dark to bright
+        strengths = image.strengths[idx[keep]] if strong and image.strengths is not None else np.zeros(len(sign))
         parts.append((contour.points_base[keep], image.points[idx[keep]], normals[keep] * sign[:, None],
-                      np.full(int(keep.sum()), i, np.int64), sign))
-    points, edge_points, normals, index, polarity = (np.concatenate(p) for p in zip(*parts, strict=True))
-    return EdgePairs(points, edge_points, normals, in_front=int(all_visible.sum()), image=index, polarity=polarity)
+                      np.full(int(keep.sum()), i, np.int64), sign, strengths))
+    points, edge_points, normals, index, polarity, strength = (np.concatenate(p) for p in zip(*parts, strict=True))
+    return EdgePairs(points, edge_points, normals, in_front=int(all_visible.sum()), image=index, polarity=polarity,
+                     strength=strength if strong else None)
 
 
 def project_base_points(T_camera_base: FloatArray, points_base: FloatArray, intrinsics: CameraIntrinsics

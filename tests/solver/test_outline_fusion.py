@@ -104,6 +104,74 @@ def test_the_edges_shift_towards_the_brighter_side_is_estimated(edges):
     assert estimated.sigma_px < 0.7 * ignored.sigma_px
 
 
+def _outward(k: int, points: np.ndarray) -> np.ndarray:
+    """(E, 2): the outward image directions at edge points (E, 2) of image k: away from their sphere's centre."""
+    centres = project_px(T_TRUE, np.array([centre for centre, _ in SCENES[k]]))
+    away = points - centres[np.argmin(np.linalg.norm(points[:, None] - centres[None], axis=2), axis=1)]
+    return away / np.linalg.norm(away, axis=1, keepdims=True)
+
+
+def _shaded(edges, dark_spheres: bool) -> list[ImageEdges]:
+    """The edges moved towards the brighter side by 0.15 px, the bright spheres' by 0.5 px more times the outward
+    normal's image y (their bottom edges further: a rim turned away from the light); with ``dark_spheres`` every
+    second sphere dark on a bright background (its edges moved by the 0.15 px only)."""
+    shaded = []
+    for k, image in enumerate(edges):
+        centres = project_px(T_TRUE, np.array([centre for centre, _ in SCENES[k]]))
+        dark = (np.argmin(np.linalg.norm(image.points[:, None] - centres[None], axis=2), axis=1) % 2 == 1) \
+            & dark_spheres
+        normals = np.where(dark[:, None], -image.normals, image.normals)  # dark to bright
+        shift = 0.15 + np.where(dark, 0.0, 0.5 * _outward(k, image.points)[:, 1])
+        shaded.append(ImageEdges(image.points + shift[:, None] * normals, normals))
+    return shaded
+
+
+def test_the_shifts_growth_along_the_outward_normal_is_estimated(edges):
+    """Estimated, the growth takes the bright spheres' extra shift where the dark ones show it apart from a turn of
+    the camera: the turn's error is a third of what the constant shift alone leaves, and the covariance holds."""
+    start = perturb(T_TRUE, START)
+    config = replace(UNLIMITED, floor_px=0.0)
+    estimated = _adjustment(_shaded(edges, True), config).fuse(start, VAGUE)
+    constant = _adjustment(_shaded(edges, True), replace(config, polarity_direction_px=0.0)).fuse(start, VAGUE)
+    assert estimated.polarity_direction_px[1] > 0.1 and abs(estimated.polarity_direction_px[0]) < 0.05
+    np.testing.assert_array_equal(constant.polarity_direction_px, [0.0, 0.0])
+    turn = np.linalg.norm(pose_difference(estimated.T_camera_base, T_TRUE)[:3])
+    assert turn < np.linalg.norm(pose_difference(constant.T_camera_base, T_TRUE)[:3]) / 2
+    assert _chi2(estimated.T_camera_base, estimated.covariance) < CHI2_999
+
+
+def test_one_polarity_leaves_the_growth_to_the_pose(edges):
+    """Every edge with one polarity: the growth along the normal would be a turn of the camera, so it is not
+    estimated and the pose is the constant shift's alone."""
+    start = perturb(T_TRUE, START)
+    config = replace(UNLIMITED, floor_px=0.0)
+    estimated = _adjustment(_shaded(edges, False), config).fuse(start, VAGUE)
+    constant = _adjustment(_shaded(edges, False), replace(config, polarity_direction_px=0.0)).fuse(start, VAGUE)
+    np.testing.assert_allclose(estimated.polarity_direction_px, [0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(estimated.T_camera_base, constant.T_camera_base, atol=1e-12)
+    assert estimated.polarity_offset_px == pytest.approx(constant.polarity_offset_px, abs=1e-12)
+
+
+def test_faint_edges_weigh_less(edges):
+    """The first sphere of each image seen as a faint edge (contrast 5 grey levels per pixel) 1 px to one side, the
+    others' strong (100) where they are: weighted by their contrast, the pose stays; unweighted, it moves."""
+    start = perturb(T_TRUE, START)
+    faint = []
+    for k, image in enumerate(edges):
+        centres = project_px(T_TRUE, np.array([centre for centre, _ in SCENES[k]]))
+        first = np.argmin(np.linalg.norm(image.points[:, None] - centres[None], axis=2), axis=1) == 0
+        moved = image.points + np.where(first[:, None], [1.0, 0.0], [0.0, 0.0])
+        faint.append(ImageEdges(moved, image.normals, np.where(first, 5.0, 100.0)))
+    config = replace(UNLIMITED, floor_px=0.0, polarity_offset_px=0.0)
+    weighted = _adjustment(faint, config).fuse(start, VAGUE)
+    unweighted = _adjustment(faint, replace(config, contrast_grey=0.0)).fuse(start, VAGUE)
+    error = np.linalg.norm(pose_difference(weighted.T_camera_base, T_TRUE)[3:])
+    assert error < TRANS_TOL
+    assert np.linalg.norm(pose_difference(unweighted.T_camera_base, T_TRUE)[3:]) > 3 * max(error, TRANS_TOL / 3)
+    # the residuals' scale is every pair's alike, whatever their weights
+    assert weighted.sigma_px == pytest.approx(unweighted.sigma_px, rel=0.5)
+
+
 def test_settled_images_are_not_rendered_again(edges):
     adjustment = _adjustment(edges)
     first = adjustment.fuse(perturb(T_TRUE, START), VAGUE)

@@ -90,6 +90,39 @@ def test_pairs_carry_the_edges_polarity(edges):
     assert np.all(pair_contour_points(T_TRUE, _model(T_TRUE), flipped, CAMERA, OutlineConfig()).polarity == 1.0)
 
 
+@pytest.mark.parametrize("blur_px", [0.0, 1.0])
+def test_edge_strengths_are_the_contrast_across_the_edge(blur_px):
+    """A step of c grey levels: each edge's strength is its largest neighbour difference, proportional to c."""
+    import cv2
+
+    def strengths(low: float, high: float) -> np.ndarray:
+        ramp = np.clip(np.arange(200) - 99.6, 0.0, 1.0)  # a vertical step at column 99.6 + 0.5 (pixel centres)
+        image = np.tile(low + (high - low) * ramp, (120, 1))
+        if blur_px:
+            image = cv2.GaussianBlur(image, (0, 0), blur_px)
+        found = image_edges(np.clip(np.rint(image), 0, 255).astype(np.uint8))
+        assert found.strengths is not None and len(found.strengths) == len(found.points) > 100
+        return found.strengths
+
+    weak, strong = strengths(80.0, 120.0), strengths(40.0, 200.0)
+    assert np.median(strong) / np.median(weak) == pytest.approx(4.0, rel=0.1)
+    assert np.median(strong) <= 160.0 and np.median(strong) > (45.0 if blur_px else 90.0)  # 0.38 c, 0.6 c
+
+
+def test_pairs_carry_the_edges_strength(edges):
+    pairs = pair_contour_points(T_TRUE, _model(T_TRUE), edges, CAMERA, OutlineConfig())
+    assert pairs.strength is not None and len(pairs.strength) == len(pairs.points_base) > 0
+    idx, _ = edges[0].nearest(pairs.edge_points[pairs.image == 0], 1e-9)
+    assert edges[0].strengths is not None
+    np.testing.assert_array_equal(pairs.strength[pairs.image == 0], edges[0].strengths[idx])
+    without = [ImageEdges(e.points, e.normals) for e in edges]  # edges made otherwise: no contrast, no strength
+    assert pair_contour_points(T_TRUE, _model(T_TRUE), without, CAMERA, OutlineConfig()).strength is None
+    with pytest.raises(InvalidInputError, match="strengths"):
+        ImageEdges(edges[0].points, edges[0].normals, np.ones(len(edges[0].points) + 1))
+    with pytest.raises(InvalidInputError, match="strengths"):
+        ImageEdges(edges[0].points[:1], edges[0].normals[:1], np.array([np.nan]))
+
+
 def test_contours_lie_on_the_edges_at_the_true_pose(edges):
     contours = _model(T_TRUE)
     for contour, image in zip(contours, edges, strict=True):
@@ -140,7 +173,7 @@ def test_pairs_of_several_images_are_each_images_own_in_order(edges):
     assert len(contours) >= 2 and all(len(a.points_base) > 0 for a in alone)
     np.testing.assert_array_equal(together.image, np.concatenate([np.full(len(a.points_base), i)
                                                                   for i, a in enumerate(alone)]))
-    for name in ("points_base", "edge_points", "normals", "polarity"):
+    for name in ("points_base", "edge_points", "normals", "polarity", "strength"):
         np.testing.assert_array_equal(getattr(together, name), np.concatenate([getattr(a, name) for a in alone]))
     assert together.in_front == sum(a.in_front for a in alone)
     empty = pair_contour_points(T, [], [], CAMERA, OutlineConfig())
