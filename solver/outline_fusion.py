@@ -610,7 +610,7 @@ class OutlineAdjustment:
         c = self.config.outline.cauchy_px
         contrast: FloatArray | float = 1.0
         if self.config.contrast_grey > 0 and pairs.strength is not None:
-            contrast = pairs.strength**2 / (pairs.strength**2 + self.config.contrast_grey**2)
+            contrast = np.maximum(pairs.strength**2 / (pairs.strength**2 + self.config.contrast_grey**2), 1e-3)
         S: FloatArray | None = None  # (P, m): the shift's regressors, each pair's
         offset, rho = np.zeros(len(sigmas) if s is not None else 0), r
         offset_information = np.zeros((len(offset), len(offset)))
@@ -620,12 +620,12 @@ class OutlineAdjustment:
             w = contrast / (1.0 + (z / c) ** 2) / sigma**2
             if s is not None:
                 S = s[:, None]
-                mean = float(w @ s) / float(np.sum(w))
+                balance = float(w @ s) / float(np.sum(w))  # the polarities' weighted mean
                 if directions:  # the growth along the outward normal, of the polarity's part apart from its mean
                     # (where every edge has one polarity it would be an image shift: a turn of the camera); none
                     # while either polarity weighs less than MIN_POLARITY_SHARE (a few stray pairs would set it)
-                    shared = (1.0 - abs(mean)) / 2.0 >= MIN_POLARITY_SHARE
-                    S = np.column_stack([s, (s - mean)[:, None] * pairs.normals * shared])
+                    shared = (1.0 - abs(balance)) / 2.0 >= MIN_POLARITY_SHARE
+                    S = np.column_stack([s, (s - balance)[:, None] * pairs.normals * shared])
                 offset_information = S.T @ (w[:, None] * S) + prior_information
                 offset = -np.linalg.solve(offset_information, S.T @ (w * r))
                 rho = r + S @ offset
