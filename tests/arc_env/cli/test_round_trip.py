@@ -288,6 +288,8 @@ def test_the_outline_stage_joins_a_recordings_calibration(recording, tmp_path, c
     assert outlines["used"] and outlines["note"] == "" and outlines["pairs"] > 1000, outlines
     assert outlines["fixed_free_direction"] is False  # the tracks fix every direction here
     assert abs(outlines["edge_shift_px"]) < 0.5 * 3  # estimated under a 0.5 px prior: within its 3-sigma
+    direction = outlines["edge_shift_direction_px"]  # under a 0.3 px prior each
+    assert len(direction) == 2 and all(abs(x) < 0.3 * 3 for x in direction), direction
     assert "combined with the tracks" in text
     T_true = np.asarray(json.loads(ground_truth_path(recording).read_text())["T_camera_base"])
     xi = pose_difference(np.asarray(result["T_camera_base"]), T_true)
