@@ -616,7 +616,7 @@ class OutlineAdjustment:
         offset_information = np.zeros((len(offset), len(offset)))
         for _ in range(1 if s is None else 2):  # weights from the residuals, the offset, the weights again
             z = rho * np.sqrt(contrast)  # residuals on the scale of an edge of full contrast
-            sigma = max(1.4826 * float(np.median(np.abs(z - np.median(z)))), 0.05)
+            sigma = _robust_scale(z)
             w = contrast / (1.0 + (z / c) ** 2) / sigma**2
             if s is not None:
                 S = s[:, None]
@@ -638,7 +638,7 @@ class OutlineAdjustment:
             J_reduced = J - S @ gain
         per_pair = J_reduced * (w * rho)[:, None]
         # the residuals' own robust scale (every pair alike, as ``OutlineFusion.sigma_px`` and the early check read it)
-        spread = max(1.4826 * float(np.median(np.abs(rho - np.median(rho)))), 0.05)
+        spread = _robust_scale(rho)
         labels, index = np.unique(groups, return_inverse=True)
         scores = np.zeros((len(labels), 6))
         np.add.at(scores, index, per_pair)
@@ -662,6 +662,11 @@ class OutlineAdjustment:
         if self.config.floor_px > 0:
             cov += self.config.floor_px**2 * np.linalg.inv(normal.mean_information)
         return 0.5 * (cov + cov.T)
+
+
+def _robust_scale(residuals: FloatArray) -> float:
+    """px: the robust scale of residuals (P,) px, 1.4826 x their median absolute deviation, at least 0.05 px."""
+    return max(1.4826 * float(np.median(np.abs(residuals - np.median(residuals)))), 0.05)
 
 
 def _symmetric(matrix: FloatArray, what: str) -> FloatArray:
