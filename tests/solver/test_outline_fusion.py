@@ -84,15 +84,24 @@ def test_the_edge_offsets_are_in_the_covariance(edges, shift):
     assert _chi2(blind.T_camera_base, blind.covariance) > CHI2_999  # the textbook covariance does not
 
 
+def _centres(k: int) -> np.ndarray:
+    """(3, 2) px: image k's sphere centres, projected."""
+    return project_px(T_TRUE, np.array([centre for centre, _ in SCENES[k]]))
+
+
+def _sphere_of(k: int, points: np.ndarray) -> np.ndarray:
+    """(E,) int: the sphere of image k each edge point (E, 2) outlines (the nearest projected centre)."""
+    return np.argmin(np.linalg.norm(points[:, None] - _centres(k)[None], axis=2), axis=1)
+
+
 def test_the_edges_shift_towards_the_brighter_side_is_estimated(edges):
     """Edges 0.3 px towards the brighter side, half the spheres dark on a bright background: the shift is estimated
     with the pose and taken out of the residuals; not estimated, it shows as their scatter and moves the pose."""
     start = perturb(T_TRUE, START)
     shifted = []
     for k, image in enumerate(edges):
-        centres = project_px(T_TRUE, np.array([centre for centre, _ in SCENES[k]]))
-        nearest = np.argmin(np.linalg.norm(image.points[:, None] - centres[None], axis=2), axis=1)
-        normals = np.where((nearest % 2 == 1)[:, None], -image.normals, image.normals)  # dark to bright
+        dark = _sphere_of(k, image.points) % 2 == 1
+        normals = np.where(dark[:, None], -image.normals, image.normals)  # dark to bright
         shifted.append(ImageEdges(image.points + 0.3 * normals, normals))
     config = replace(UNLIMITED, floor_px=0.0)
     estimated = _adjustment(shifted, config).fuse(start, VAGUE)
@@ -106,8 +115,7 @@ def test_the_edges_shift_towards_the_brighter_side_is_estimated(edges):
 
 def _outward(k: int, points: np.ndarray) -> np.ndarray:
     """(E, 2): the outward image directions at edge points (E, 2) of image k: away from their sphere's centre."""
-    centres = project_px(T_TRUE, np.array([centre for centre, _ in SCENES[k]]))
-    away = points - centres[np.argmin(np.linalg.norm(points[:, None] - centres[None], axis=2), axis=1)]
+    away = points - _centres(k)[_sphere_of(k, points)]
     return away / np.linalg.norm(away, axis=1, keepdims=True)
 
 
@@ -117,9 +125,7 @@ def _shaded(edges, dark_spheres: bool) -> list[ImageEdges]:
     second sphere dark on a bright background (its edges moved by the 0.15 px only)."""
     shaded = []
     for k, image in enumerate(edges):
-        centres = project_px(T_TRUE, np.array([centre for centre, _ in SCENES[k]]))
-        dark = (np.argmin(np.linalg.norm(image.points[:, None] - centres[None], axis=2), axis=1) % 2 == 1) \
-            & dark_spheres
+        dark = (_sphere_of(k, image.points) % 2 == 1) & dark_spheres
         normals = np.where(dark[:, None], -image.normals, image.normals)  # dark to bright
         shift = 0.15 + np.where(dark, 0.0, 0.5 * _outward(k, image.points)[:, 1])
         shaded.append(ImageEdges(image.points + shift[:, None] * normals, normals))
@@ -158,8 +164,7 @@ def test_faint_edges_weigh_less(edges):
     start = perturb(T_TRUE, START)
     faint = []
     for k, image in enumerate(edges):
-        centres = project_px(T_TRUE, np.array([centre for centre, _ in SCENES[k]]))
-        first = np.argmin(np.linalg.norm(image.points[:, None] - centres[None], axis=2), axis=1) == 0
+        first = _sphere_of(k, image.points) == 0
         moved = image.points + np.where(first[:, None], [1.0, 0.0], [0.0, 0.0])
         faint.append(ImageEdges(moved, image.normals, np.where(first, 5.0, 100.0)))
     config = replace(UNLIMITED, floor_px=0.0, polarity_offset_px=0.0)
