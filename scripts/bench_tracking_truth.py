@@ -27,6 +27,7 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from arc_env.bench.dense_flow import DenseFlowConfig, dense_flow_tracks  # noqa: E402
 from arc_env.bench.episodes import EpisodeSpec, make_env  # noqa: E402
 from arc_env.bench.tracking_truth import MotionTruth, motion_truth, rendered_motions, summary  # noqa: E402
 from arc_env.robot.library import ROBOT_NAMES  # noqa: E402
@@ -42,19 +43,29 @@ from solver.frames import pose_errors  # noqa: E402
 #: every pyramid level from rest at each step instead of from the track's last step
 #: (``TrackerConfig.predicted_max_level`` off); "still-window": tracks whose detection window stays still while
 #: they move are dropped (``TrackerConfig.max_static_fraction`` 0.6); "no-shading-ramp": the patch fit allows only
-#: the brightness offset and gain to change, not a linear ramp across the patch (``TrackerConfig.shading_ramp`` off).
-SETTINGS = {"default": TrackerConfig(), "affine": TrackerConfig(window_sigma_px=0.0),
+#: the brightness offset and gain to change, not a linear ramp across the patch (``TrackerConfig.shading_ramp`` off);
+#: "dense-flow": no corners, DIS flow from every 8 px grid point of the moving region
+#: (``arc_env.bench.dense_flow``); "dense-flow-textured": only grid points whose smaller structure-tensor eigenvalue
+#: is at least 1e-4, 4 px apart, a 0.3 px forward-backward check.
+SETTINGS: dict[str, TrackerConfig | DenseFlowConfig] = {
+            "default": TrackerConfig(), "affine": TrackerConfig(window_sigma_px=0.0),
             "cold-lk": TrackerConfig(predicted_max_level=None),
             "gaussian-weighted-check": TrackerConfig(max_window_dissimilarity=1e9),
             "quadratic": TrackerConfig(quadratic_warp=True, window_sigma_px=0.0),
             "still-window": TrackerConfig(max_static_fraction=0.6),
-            "no-shading-ramp": TrackerConfig(shading_ramp=False)}
+            "no-shading-ramp": TrackerConfig(shading_ramp=False),
+            "dense-flow": DenseFlowConfig(),
+            "dense-flow-textured": DenseFlowConfig(grid_px=4, fb_max_px=0.3, min_eigenvalue=1e-4)}
 
 
-def retracked(seen: list[SeenMotion], tracker: TrackerConfig) -> list[SeenMotion]:
+def retracked(seen: list[SeenMotion], tracker: TrackerConfig | DenseFlowConfig) -> list[SeenMotion]:
     """The seen motions that have frames, their tracks replaced by ``tracker``'s of those frames."""
-    return [replace(m, tracks=track_keypoints(m.frames, np.asarray(m.deltas), tracker).tracks)
-            for m in seen if m.frames is not None]
+    def tracks(m: SeenMotion) -> list[Any]:
+        if isinstance(tracker, DenseFlowConfig):
+            return dense_flow_tracks(m.frames, np.asarray(m.deltas), tracker)
+        return track_keypoints(m.frames, np.asarray(m.deltas), tracker).tracks
+
+    return [replace(m, tracks=tracks(m)) for m in seen if m.frames is not None]
 
 
 def score(scene: Any, motions: list[SeenMotion]) -> list[MotionTruth]:  # noqa: ANN401
