@@ -34,6 +34,10 @@ class OutlineMismatchError(InsufficientMotionsError):
     """From the first motions, the robot's outlines fit the images' edges too loosely at the tracks' pose (far off?)."""
 
 
+class OutlineReachError(InsufficientMotionsError):
+    """The pose given to the outlines is too uncertain to pair their contour points with the nearest edges."""
+
+
 class UnobservablePoseError(ArcCalibError):
     """The accepted motions cannot fix all six degrees of freedom of T_camera_base."""
 

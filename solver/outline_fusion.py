@@ -63,7 +63,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from solver.arrays import FloatArray
-from solver.errors import InsufficientMotionsError, InvalidInputError, OutlineMismatchError
+from solver.errors import InsufficientMotionsError, InvalidInputError, OutlineMismatchError, OutlineReachError
 from solver.frames import check_transform, perturb, pose_difference
 from solver.observations import CameraIntrinsics
 from solver.outlines import (
@@ -153,6 +153,8 @@ class OutlineFusionConfig:
             this RMS, pixels (pairing each with its nearest edge would then be a guess). Measured: a realistic 720p
             iiwa episode whose tracks were 164 mm off with a 1-sigma of 170 mm at motion 6 had its outlines paired
             with the wrong edges, 118 mm off with a 1-sigma of 1.8 mm (chi-square 4293), until motion 9.
+        max_rescue_prior_px: ... and this, when the calibrator's rescue has searched the tracks' weakest direction
+            first (``Calibrator._rescue_wide``): the rescue's residual-scale test vouches for the pairing instead.
         min_groups: fewest motions with images before the outlines are used.
         trusted_groups: below this many motions with images the fused covariance is at least the outlines' own
             (``conservative_covariance``): the tracks' clustered covariance needs several clusters, and from three
@@ -186,6 +188,7 @@ class OutlineFusionConfig:
     contrast_grey: float = 25.0
     floor_px: float = 0.07
     max_prior_px: float = 8.0
+    max_rescue_prior_px: float = 40.0
     min_groups: int = 3
     trusted_groups: int = 6
     max_early_sigma_px: float = 1.0
@@ -331,7 +334,8 @@ class OutlineAdjustment:
         self._images.append(_Cached(image))
 
     def fuse(self, T_prior: FloatArray, covariance_prior: FloatArray, T_start: FloatArray | None = None,
-             free_direction: FloatArray | None = None, start_covariance: FloatArray | None = None) -> OutlineFusion:
+             free_direction: FloatArray | None = None, start_covariance: FloatArray | None = None,
+             max_prior_px: float | None = None) -> OutlineFusion:
         """The pose that fits the tracks' estimate (a Gaussian prior) and every image's outlines.
 
         Args:
@@ -346,6 +350,8 @@ class OutlineAdjustment:
             start_covariance: (6, 6) float64: T_start's own covariance, when the start is known better than the
                 prior (a pose the outlines fixed in an earlier update): the pairing's reach is judged by it instead
                 of the prior's (the nearest edges are no guess from a start that fit them closely).
+            max_prior_px: the reach allowed, px RMS, instead of ``OutlineFusionConfig.max_prior_px`` (a caller that
+                vouches for the start otherwise, e.g. by the outlines' search and their residual scale after).
 
         Raises:
             InvalidInputError: a non-rigid pose, a covariance that is not finite, symmetric positive definite, or a
@@ -354,6 +360,8 @@ class OutlineAdjustment:
                 with an edge, or the fused pose disagrees with the tracks' (the message gives the distance).
             OutlineMismatchError: from fewer than ``trusted_groups`` motions, the outlines' residual scale at the
                 adjusted pose exceeds ``max_early_sigma_px`` (the tracks' pose may be far off).
+            OutlineReachError: the reach covariance's 1-sigma moves the contour points by more than ``max_prior_px``
+                (or ``OutlineFusionConfig.max_prior_px``) RMS.
         """
         T0 = check_transform(np.asarray(T_prior, dtype=np.float64), "T_prior")
         C0 = _symmetric(covariance_prior, "the prior covariance")
@@ -373,7 +381,7 @@ class OutlineAdjustment:
             reach = _symmetric(start_covariance, "the start covariance")
         self._require_groups(self.config.min_groups if free_direction is None else self.config.min_groups_along)
         T = T0 if T_start is None else check_transform(np.asarray(T_start, dtype=np.float64), "T_start")
-        return self._fuse(T0, P0, T, reach)
+        return self._fuse(T0, P0, T, reach, self.config.max_prior_px if max_prior_px is None else max_prior_px)
 
     def search_along(self, T: FloatArray, direction: FloatArray, offsets: FloatArray) -> tuple[FloatArray, float]:
         """The translation along a direction the tracks leave free that puts the robot's contours on the edges.
@@ -434,7 +442,8 @@ class OutlineAdjustment:
             raise InsufficientMotionsError(f"outline images from {self.n_groups} motion(s); at least {fewest} are "
                                            "needed")
 
-    def _fuse(self, T0: FloatArray, P: FloatArray, T: FloatArray, reach_covariance: FloatArray) -> OutlineFusion:
+    def _fuse(self, T0: FloatArray, P: FloatArray, T: FloatArray, reach_covariance: FloatArray,
+              max_prior_px: float) -> OutlineFusion:
         """The adjustment from T with the tracks' pose T0 and information P (6, 6) as the prior; the combination."""
         cfg = self.config
         metric: FloatArray | None = None  # the fused pose's information, for convergence: set at the first pairing
@@ -450,7 +459,7 @@ class OutlineAdjustment:
                 for _ in range(cfg.gauss_newton_steps):
                     normal = self._normal(T, paired)
                     if metric is None:  # at the start's first pairing
-                        self._check_prior_reach(normal, reach_covariance)
+                        self._check_prior_reach(normal, reach_covariance, max_prior_px)
                         metric = P + np.linalg.inv(self._outline_covariance(normal))
                     d = pose_difference(T0, T)
                     step = -np.linalg.solve(P + normal.information, P @ d + normal.gradient)
@@ -502,16 +511,16 @@ class OutlineAdjustment:
         r = outline_residuals(T, pairs.points_base, pairs.edge_points, pairs.normals, self.intrinsics)
         return (float(np.sum(np.minimum(r**2, cap_px**2))) + (pairs.in_front - len(r)) * cap_px**2) / pairs.in_front
 
-    def _check_prior_reach(self, normal: _Normal, covariance_prior: FloatArray) -> None:
+    def _check_prior_reach(self, normal: _Normal, covariance_prior: FloatArray, max_prior_px: float) -> None:
         """Refuse a tracks' pose so uncertain that pairing its contours with the nearest edges would be a guess.
 
         Its 1-sigma moves the contour points by sqrt(trace(M C)) px RMS (M: ``_Normal.mean_information``).
         """
         reach = float(np.sqrt(max(np.trace(normal.mean_information @ covariance_prior), 0.0)))
-        if reach > self.config.max_prior_px:
-            raise InsufficientMotionsError(
+        if reach > max_prior_px:
+            raise OutlineReachError(
                 f"the tracks' pose is too uncertain for the outlines yet: its 1-sigma moves their contour points by "
-                f"{reach:.1f} px RMS (at most {self.config.max_prior_px:g}): the nearest edges may be the wrong ones")
+                f"{reach:.1f} px RMS (at most {max_prior_px:g}): the nearest edges may be the wrong ones")
 
     def _render_where_moved(self, T: FloatArray) -> int:
         """Render the contours the pose T has moved by more than ``rerender_px``; returns how many."""

@@ -41,6 +41,7 @@ from solver.errors import (
     InvalidInputError,
     NonRigidTracksError,
     OutlineMismatchError,
+    OutlineReachError,
     UnobservablePoseError,
 )
 from solver.frames import pose_difference, transform_from_rt
@@ -130,6 +131,9 @@ class CalibratorConfig:
         family_distances: m; the family is sampled where the motions' joints lie between these
             distances from the camera (log-spaced)...
         family_samples: ... at this many distances (each can give two members, both in front).
+        rescue_wide: when the tracks' adjustment gives a pose too uncertain for the outlines to pair with
+            (``OutlineReachError``), search its weakest direction with the outlines as the rescue does when the tracks
+            give no pose, and take the result if it lies inside the tracks' region (``Calibrator._rescue_wide``).
         incremental: once there is a refined pose, an update that adds one motion solves only its tracks'
             points and the pose, the earlier motions entering through their marginalized information
             (``solver.refinement.refine_increment``); every motion is solved again (relinearized) when
@@ -169,6 +173,7 @@ class CalibratorConfig:
     family_start: bool = True
     family_distances: tuple[float, float] = (0.3, 5.0)
     family_samples: int = 12
+    rescue_wide: bool = True
     incremental: bool = True
     relinearize_sigma: float = 2.0
     relinearize_every: int = 20
@@ -596,6 +601,9 @@ class Calibrator:
             refined = self._without_weak_motions(refined)
             t_refined = time.perf_counter()
             outline, failure = self._fuse_outlines(refined)
+            if isinstance(failure, OutlineReachError) and cfg.rescue_wide:
+                tracks = tracks if tracks is not None else self._track_set(live)
+                outline, failure = self._rescue_wide(refined, live, tracks, failure)
             first = self._refined is None  # a first pose: from the linear pose, the family or a rescued pose
             loose = self._loose_fit(outline) if first and outline is not None else ""
             if loose:  # as the rescue's: nothing else vouches for a first pose, at any count
@@ -722,8 +730,8 @@ class Calibrator:
                 return fused, ""
         return None, why
 
-    def _rescue_from(self, T: FloatArray, live: list[int], joints: FloatArray, tracks: TrackSet
-                     ) -> tuple[OutlineFusion | None, str]:
+    def _rescue_from(self, T: FloatArray, live: list[int], joints: FloatArray, tracks: TrackSet,
+                     max_prior_px: float | None = None) -> tuple[OutlineFusion | None, str]:
         """The outlines' rescue (``_outline_rescue``) from the start T (4, 4): (the fusion, "") or (None, why not).
 
         A short pass of the bundle adjustment (``screen_start``); there the tracks' weakest direction
@@ -732,8 +740,9 @@ class Calibrator:
         prior (``refine``'s ``free_direction``: its covariance is the honest one elsewhere); the outlines' search
         along u where the motions' joints (``joints`` (M, 3), base frame) lie ``family_distances`` from the camera
         (``OutlineAdjustment.search_along``) and their adjustment from there with the tracks' pose and covariance as
-        the prior (``fuse``). The outlines must fit their edges there (residual scale at most
-        ``OutlineFusionConfig.max_early_sigma_px``, however many motions: nothing else vouches for a rescued pose).
+        the prior (``fuse``; ``max_prior_px``: its reach instead of ``OutlineFusionConfig.max_prior_px``). The
+        outlines must fit their edges there (residual scale at most ``OutlineFusionConfig.max_early_sigma_px``, however
+        many motions: nothing else vouches for a rescued pose).
         """
         cfg = self.config
         assert self.outlines is not None
@@ -752,10 +761,32 @@ class Calibrator:
             if offsets.size < 2:
                 return None, f"{prefix}: no pose along it puts the robot in front of the camera"
             start, _ = self.outlines.search_along(held.T_camera_base, u, offsets)
-            fused = self.outlines.fuse(held.T_camera_base, held.covariance, start, free_direction=u)
+            fused = self.outlines.fuse(held.T_camera_base, held.covariance, start, free_direction=u,
+                                       max_prior_px=max_prior_px)
         except (ArcCalibError, np.linalg.LinAlgError) as exc:
             return None, f"{prefix}: {type(exc).__name__}: {exc}"
         return self._accepted_rescue(fused, prefix)
+
+    def _rescue_wide(self, refined: RefinementResult, live: list[int], tracks: TrackSet,
+                     failure: OutlineReachError) -> tuple[OutlineFusion | None, Exception]:
+        """The outlines' rescue from a tracks' pose too wide for them to pair with (``CalibratorConfig.rescue_wide``).
+
+        The tracks' adjustment gave a pose whose 1-sigma moves the contour points too far for the nearest edges to be
+        theirs (``failure``): its weakest direction is searched with the outlines and the adjustment goes on from the
+        best pose there, as when the tracks give no pose (``_rescue_from``, from the tracks' pose), with the reach
+        ``OutlineFusionConfig.max_rescue_prior_px`` in the other directions. The rescue's own tests decide (the
+        outlines' residual scale, their agreement with the tracks' pose held along the searched direction, the
+        1-sigma bounds), not the tracks' covariance: from a few motions it can be far too narrow (seen: an as-shipped
+        iiwa's family start at motion 5, 0.18 rad and 217 mm off with a 1-sigma of 142 mm, the rescue 0.09 mm off
+        at a chi-square of 34 under it). Returns (the fusion, None) or (None, the reach failure with the rescue's
+        reason).
+        """
+        joints = np.array([self._motions[k].point_base for k in live])
+        fused, why = self._rescue_from(refined.T_camera_base, live, joints, tracks,
+                                       self.outlines.config.max_rescue_prior_px if self.outlines else None)
+        if fused is not None:
+            return fused, None
+        return None, OutlineReachError(f"{failure}; searched along the tracks' weakest direction: {why}")
 
     def _rescue_near(self, T: FloatArray, tracks: TrackSet) -> tuple[OutlineFusion | None, str]:
         """The outlines' rescue from the last rescued pose T (4, 4): (the fusion, "") or (None, why not).

@@ -953,3 +953,27 @@ def test_the_rescue_near_the_rescued_pose_fixes_what_one_joint_leaves_free():
     assert rot < NOISY_ROT and trans < NOISY_TRANS
     xi = pose_difference(fused.T_camera_base, T)
     assert xi @ np.linalg.solve(fused.covariance, xi) < CHI2_6_999
+
+
+def test_a_tracks_pose_too_wide_for_the_outlines_is_rescued_along_its_weakest_direction():
+    """A tracks' pose whose 1-sigma moves the contour points further than ``max_prior_px`` (here a tight 0.5 px, so
+    that six noisy motions are too few) is not fused: with ``rescue_wide`` the outlines search its weakest direction
+    and adjust from there with the wider ``max_rescue_prior_px``; the rescued pose holds the truth, closer than the
+    tracks' own. Off, or with a rescue reach too tight even along the rest, the tracks' pose stays and the note says
+    why."""
+    tight = OutlineFusionConfig(max_prior_px=0.5)
+    _, off, T = _outline_episode(5, 6, CalibratorConfig(rescue_wide=False, outlines=tight))
+    assert off.state.outline is None and off.state.outline_note.startswith("OutlineReachError")
+    tracks_rot, tracks_trans = pose_errors(off.state.T_camera_base, T)
+    _, on, _ = _outline_episode(5, 6, CalibratorConfig(outlines=tight))
+    s = on.state
+    assert s.outline is not None and s.outline_note == "" and s.stage == "refined" and s.start != "outlines"
+    rot, trans = pose_errors(s.T_camera_base, T)
+    assert rot < NOISY_ROT and trans < NOISY_TRANS and trans < tracks_trans / 3
+    xi = pose_difference(s.T_camera_base, T)
+    assert xi @ np.linalg.solve(s.covariance, xi) < CHI2_6_999
+    _, refused, _ = _outline_episode(5, 6, CalibratorConfig(outlines=replace(tight, max_rescue_prior_px=0.01)))
+    note = refused.state.outline_note
+    assert refused.state.outline is None and note.startswith("OutlineReachError")
+    assert "searched along the tracks' weakest direction" in note
+    np.testing.assert_array_equal(refused.state.T_camera_base, off.state.T_camera_base)
