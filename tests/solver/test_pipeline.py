@@ -977,3 +977,40 @@ def test_a_tracks_pose_too_wide_for_the_outlines_is_rescued_along_its_weakest_di
     assert refused.state.outline is None and note.startswith("OutlineReachError")
     assert "searched along the tracks' weakest direction" in note
     np.testing.assert_array_equal(refused.state.T_camera_base, off.state.T_camera_base)
+
+
+@pytest.mark.parametrize("fits_better", [True, False])
+def test_after_a_wide_rescue_the_tracks_chain_goes_on_from_the_rescued_pose_when_it_fits_them_better(monkeypatch,
+                                                                                                        fits_better):
+    """After the rescue of a wide tracks' pose the tracks are adjusted again from the rescued pose; that adjustment
+    (here its RMS made lower or higher than the first's, its pose the real one) replaces the tracks' chain only when
+    it fits them at least as well, and the outlines are then adjusted with it as their prior."""
+    tight = CalibratorConfig(outlines=OutlineFusionConfig(max_prior_px=0.5))
+    real_refine, real_rescue = Calibrator._refine_checked, Calibrator._rescue_wide
+    from_rescue, inside, chains = [], [], []
+
+    def rescue_wide(self, refined, *args):
+        inside.append(refined)
+        try:
+            fused, failure, chain = real_rescue(self, refined, *args)
+        finally:
+            inside.pop()
+        if fused is not None:
+            chains.append((chain is refined, bool(from_rescue) and chain is from_rescue[-1]))
+        return fused, failure, chain
+
+    def refine_checked(self, tracks, start, points_init):
+        result, why, ran = real_refine(self, tracks, start, points_init)
+        if result is not None and inside:  # the adjustment again from the rescued pose
+            result = replace(result, rms_px=inside[-1].rms_px * (0.9 if fits_better else 1.1))
+            from_rescue.append(result)
+        return result, why, ran
+
+    monkeypatch.setattr(Calibrator, "_rescue_wide", rescue_wide)
+    monkeypatch.setattr(Calibrator, "_refine_checked", refine_checked)
+    _, cal, T = _outline_episode(5, 6, tight)
+    s = cal.state
+    assert from_rescue and chains and s.outline is not None
+    assert chains == [(not fits_better, fits_better)] * len(chains)
+    rot, trans = pose_errors(s.T_camera_base, T)
+    assert rot < NOISY_ROT and trans < NOISY_TRANS
