@@ -133,7 +133,7 @@ class CalibratorConfig:
         family_samples: ... at this many distances (each can give two members, both in front).
         rescue_wide: when the tracks' adjustment gives a pose too uncertain for the outlines to pair with
             (``OutlineReachError``), search its weakest direction with the outlines as the rescue does when the tracks
-            give no pose, and take the result if it lies inside the tracks' region (``Calibrator._rescue_wide``).
+            give no pose, and take the result when the rescue's own tests pass (``Calibrator._rescue_wide``).
         incremental: once there is a refined pose, an update that adds one motion solves only its tracks'
             points and the pose, the earlier motions entering through their marginalized information
             (``solver.refinement.refine_increment``); every motion is solved again (relinearized) when
@@ -787,9 +787,10 @@ class Calibrator:
         Returns:
             (the fusion, None, the tracks' pose) or (None, the reach failure with the rescue's reason, ``refined``).
         """
+        assert self.outlines is not None
         joints = np.array([self._motions[k].point_base for k in live])
         fused, why = self._rescue_from(refined.T_camera_base, live, joints, tracks,
-                                       self.outlines.config.max_rescue_prior_px if self.outlines else None)
+                                       self.outlines.config.max_rescue_prior_px)
         if fused is None:
             return None, OutlineReachError(f"{failure}; searched along the tracks' weakest direction: {why}"), refined
         again, _, _ = self._refine_checked(tracks, fused.T_camera_base, None)
@@ -797,7 +798,6 @@ class Calibrator:
                 or _transform_chi2(fused.T_camera_base, again.T_camera_base, again.covariance) > FAMILY_SAME_CHI2):
             return fused, None, refined
         self._store_batch(live, tracks, again)
-        assert self.outlines is not None
         try:
             joint = self.outlines.fuse(again.T_camera_base, again.covariance, fused.T_camera_base,
                                        start_covariance=fused.covariance)
