@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from arc_env.robot.tracking import TrackerConfig, moving_mask
+from arc_env.robot.tracking import TrackerConfig, _grey_frames, _moving_mask_u8
 from solver.arrays import FloatArray, ImageArray
 from solver.errors import InvalidInputError
 from solver.observations import KeypointTrack
@@ -88,12 +88,12 @@ def dense_flow_tracks(frames: Sequence[ImageArray], delta: FloatArray,
     """
     config = config or DenseFlowConfig()
     delta = np.asarray(delta, dtype=np.float64).reshape(-1)
-    mask = moving_mask(frames, TrackerConfig())  # validates the frames
+    greys = _grey_frames(frames)  # validated, grey, as the corner tracker takes them
     if delta.shape != (len(frames),) or not np.all(np.isfinite(delta)):
         raise InvalidInputError(f"delta must be ({len(frames)},) finite, got shape {delta.shape}")
+    mask = _moving_mask_u8(greys, TrackerConfig()) > 0  # ``moving_mask`` of the same greys
     if not mask.any():
         return []
-    greys = [f if f.ndim == 2 else cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
     x, y, w, h = cv2.boundingRect(mask.astype(np.uint8))
     x0, y0 = max(0, x - config.margin_px), max(0, y - config.margin_px)
     x1, y1 = min(mask.shape[1], x + w + config.margin_px), min(mask.shape[0], y + h + config.margin_px)
