@@ -56,6 +56,29 @@ def test_edges_of_an_antialiased_disk_are_subpixel():
     assert np.median(np.sum(found.normals * radial, axis=1)) < -0.95
 
 
+@pytest.mark.parametrize("shape", [(7, 9), (1, 5), (4, 1)])
+def test_bilinear_samples_as_scipys_map_coordinates(shape):
+    from scipy.ndimage import map_coordinates
+
+    from solver.outlines import _bilinear
+
+    rng = np.random.default_rng(3)
+    image = rng.uniform(0.0, 255.0, shape).astype(np.float32)
+    # inside, on the last row and column, and beyond every border (the nearest border pixel's value there)
+    rows = np.concatenate([rng.uniform(-3.0, shape[0] + 2.0, 500), [shape[0] - 1.0, 0.0]])
+    cols = np.concatenate([rng.uniform(-3.0, shape[1] + 2.0, 500), [shape[1] - 1.0, 0.0]])
+    expected = map_coordinates(image.astype(np.float64), [rows, cols], order=1, mode="nearest")
+    np.testing.assert_allclose(_bilinear(image, rows, cols), expected, atol=1e-4)
+
+
+def test_edges_of_tiny_images_do_not_fail():
+    for shape in [(1, 1), (1, 6), (6, 1), (2, 2)]:
+        image = np.zeros(shape, np.uint8)
+        image[..., shape[-1] // 2:] = 200
+        found = image_edges(image)
+        assert np.all(np.isfinite(found.points)) and found.points.shape == found.normals.shape
+
+
 def _shaded_disk(inside: float, outside: float, blur_px: float) -> tuple[np.ndarray, np.ndarray, float]:
     """(H, W) uint8 image of a Lambertian sphere lit from the camera (half its brightness from shading), 8x8
     supersampled and blurred; its centre (2,) and radius, pixels."""
