@@ -655,8 +655,7 @@ class OutlineAdjustment:
         # the residuals' own robust scale (every pair alike, as ``OutlineFusion.sigma_px`` and the early check read it)
         spread = _robust_scale(rho)
         labels, index = np.unique(groups, return_inverse=True)
-        scores = np.zeros((len(labels), 6))
-        np.add.at(scores, index, per_pair)
+        scores = np.stack([np.bincount(index, weights=per_pair[:, k], minlength=len(labels)) for k in range(6)], axis=1)
         U = np.column_stack([np.ones(len(r)), pairs.normals])
         mean = information * sigma**2 / float(np.sum(w * sigma**2))
         return _Normal(0.5 * (information + information.T), J.T @ (w * rho), scores, J_reduced.T @ (w[:, None] * U),

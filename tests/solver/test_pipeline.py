@@ -172,6 +172,33 @@ def test_same_input_gives_identical_estimates():
     np.testing.assert_array_equal(a.state.T_camera_base, b.state.T_camera_base)
 
 
+@pytest.mark.parametrize("blas_threads", [1, None])
+def test_the_calibrator_limits_blas_threads_while_it_works_and_restores_them(blas_threads):
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    seen: list[int] = []
+
+    def kinematics(q, joint):  # called inside add_motion: records the BLAS threads there
+        seen.extend(info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas")
+        return PANDA.axis_and_point(q, joint)
+
+    rng = np.random.default_rng(3)
+    scene = SyntheticScene(PANDA, K, sample_camera_pose(rng), SyntheticConfig(tracks_per_motion=15), rng)
+    cal = Calibrator(K, kinematics, CalibratorConfig(blas_threads=blas_threads))
+    with threadpool_limits(limits=2, user_api="blas"):
+        for _ in range(3):
+            cal.add_motion(scene.random_motion(rng).observation)
+        after = [info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"]
+    assert seen and set(seen) == ({1} if blas_threads == 1 else {2})
+    assert set(after) == {2}  # restored
+
+
+def test_blas_threads_must_be_at_least_one():
+    for bad in (0, -1, True):
+        with pytest.raises(InvalidInputError, match="blas_threads"):
+            CalibratorConfig(blas_threads=bad)
+
+
 def test_too_few_motions_give_no_pose():
     cal, _ = _episode(4, 2, SyntheticConfig(tracks_per_motion=15))
     assert cal.state.T_camera_base is None and cal.state.stage == "none"
