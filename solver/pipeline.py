@@ -15,7 +15,6 @@ and screened by short robust passes (ours: ``CalibratorConfig.family_start``).
 
 from __future__ import annotations
 
-import contextlib
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -23,7 +22,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from threadpoolctl import threadpool_limits
 
 from solver.arrays import FloatArray, evenly_spaced
 from solver.calibration import (
@@ -65,6 +63,7 @@ from solver.refinement import (
     track_observability,
 )
 from solver.rigid_axis import RigidAxisConfig, geometry_from_rigid_fit, rigid_axis_of_motion
+from solver.threads import check_blas_threads, limited_blas
 
 Stage = Literal["none", "linear", "refined"]
 Start = Literal["", "previous", "linear", "family", "outlines"]
@@ -153,11 +152,8 @@ class CalibratorConfig:
             outlines in those images (from where the last update's combination ended), and the state reports the
             combined pose and covariance (``CalibrationState.outline``); the tracks' own chain of estimates, which
             the next update starts from, is not changed by it.
-        blas_threads: BLAS threads while the calibrator works (``add_motion``, ``update``; threadpoolctl), restored
-            after; None: leave BLAS as it is. Its products are small (pairs x 6, tracks x 9): more threads only wait
-            on each other, and on a machine also rendering or tracking they steal its cores. Replaying a realistic
-            1080p Panda capture (25 motions, the outline stage on) on 2 cores with another process rendering: 21.7 s
-            CPU / 21.3 s wall with OpenBLAS's own 2 threads, 16.2 s / 18.1 s with 1.
+        blas_threads: BLAS threads while the calibrator works (``add_motion``, ``update``), restored after; None:
+            leave BLAS as it is (``solver.threads``, where the measurement is).
     """
 
     motion: MotionConfig = field(default_factory=MotionConfig)
@@ -192,8 +188,7 @@ class CalibratorConfig:
         if not 0 < lo < hi or self.family_samples < 2:
             raise InvalidInputError(f"need 0 < family_distances[0] < family_distances[1] and family_samples >= 2, "
                                     f"got {self.family_distances}, {self.family_samples}")
-        if self.blas_threads is not None and (isinstance(self.blas_threads, bool) or self.blas_threads < 1):
-            raise InvalidInputError(f"blas_threads must be None or >= 1, got {self.blas_threads!r}")
+        check_blas_threads(self.blas_threads, "blas_threads")
 
 
 @dataclass
@@ -480,14 +475,8 @@ class Calibrator:
             InvalidInputError: the kinematics function rejects the motion's configuration or
                 returns a non-finite or non-unit axis.
         """
-        with self._blas():
+        with limited_blas(self.config.blas_threads):
             return self._add_motion(obs, update, outlines)
-
-    def _blas(self) -> contextlib.AbstractContextManager[object]:
-        """BLAS limited to ``config.blas_threads`` threads inside (nothing changed when it is None)."""
-        if self.config.blas_threads is None:
-            return contextlib.nullcontext()
-        return threadpool_limits(limits=self.config.blas_threads, user_api="blas")
 
     def _add_motion(self, obs: MotionObservation, update: bool, outlines: Sequence[OutlineImage]) -> MotionReport:
         axis, point = self.kinematics(obs.q_start, obs.joint)
@@ -550,7 +539,7 @@ class Calibrator:
 
     def update(self) -> CalibrationState:
         """Recompute the estimate from every motion so far; returns (and stores) the new state."""
-        with self._blas():
+        with limited_blas(self.config.blas_threads):
             return self._update()
 
     def _update(self) -> CalibrationState:

@@ -62,6 +62,7 @@ from solver.arrays import FloatArray, ImageArray, MaskArray
 from solver.errors import InvalidInputError
 from solver.observations import KeypointTrack
 from solver.schur import robust_sigma
+from solver.threads import check_blas_threads, limited_blas
 
 #: LK termination: stop after 30 iterations or when an update is below 0.01 px (per pyramid level).
 DEFAULT_CRITERIA: tuple[int, int, float] = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
@@ -239,6 +240,8 @@ class TrackerConfig:
             on 8); against the simulator's surface points the median end error 2.37 -> 2.02 px, within 1 px all
             along 26 -> 31 %; tracks per motion 48 -> 39 (patches whose structure was mostly shading now fail the
             dissimilarity check: the spread it divides by has the ramp removed too).
+        blas_threads: BLAS threads while ``track_keypoints`` works, restored after; None: leave BLAS as it is
+            (``solver.threads``, where the measurement is).
     """
 
     max_corners: int = 400
@@ -271,8 +274,10 @@ class TrackerConfig:
     max_static_fraction: float = 1.0
     static_check_px: float = 3.0
     shading_ramp: bool = True
+    blas_threads: int | None = 1
 
     def __post_init__(self) -> None:
+        check_blas_threads(self.blas_threads, "blas_threads")
         checks = [
             (self.max_corners >= 1, "max_corners must be >= 1"),
             (0.0 < self.quality_level < 1.0, "quality_level must be in (0, 1)"),
@@ -998,8 +1003,13 @@ def track_keypoints(frames: Sequence[ImageArray], delta: FloatArray,
         InvalidInputError: fewer than 2 frames, frames of different shapes, empty or non-uint8 images,
             a delta that is not (F,) or not finite.
     """
-    start_time = time.perf_counter()
     config = TrackerConfig() if config is None else config
+    with limited_blas(config.blas_threads):
+        return _track_keypoints(frames, delta, config)
+
+
+def _track_keypoints(frames: Sequence[ImageArray], delta: FloatArray, config: TrackerConfig) -> TrackingResult:
+    start_time = time.perf_counter()
     greys = _grey_frames(frames)
     n_frames = len(greys)
     delta = np.asarray(delta, dtype=np.float64)

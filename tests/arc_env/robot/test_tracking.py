@@ -773,12 +773,36 @@ def test_moving_mask_rejects_bad_input():
         ({"affine_step_px": float("nan")}, "affine_step_px"),
         ({"predicted_max_level": -1}, "predicted_max_level"),
         ({"max_level": 1, "predicted_max_level": 2}, "predicted_max_level"),
+        ({"blas_threads": 0}, "blas_threads"),
+        ({"blas_threads": 1.5}, "blas_threads"),
     ],
     ids=lambda v: str(v) if isinstance(v, dict) else "",
 )
 def test_bad_config_raises(kwargs, match):
     with pytest.raises(InvalidInputError, match=match):
         TrackerConfig(**kwargs)
+
+
+def test_tracking_runs_blas_on_the_configured_threads_and_restores_them(rng, monkeypatch):
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    import arc_env.robot.tracking as tracking
+
+    seen: list[int] = []
+    grey_frames = tracking._grey_frames
+
+    def spy(frames):  # called inside track_keypoints
+        seen.extend(info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas")
+        return grey_frames(frames)
+
+    monkeypatch.setattr(tracking, "_grey_frames", spy)
+    sweep = in_plane_sweep(rng)
+    with threadpool_limits(limits=2, user_api="blas"):
+        for threads in (1, None):
+            seen.clear()
+            track_keypoints(sweep.frames, sweep.delta, TrackerConfig(max_corners=50, blas_threads=threads))
+            assert seen and set(seen) == ({1} if threads == 1 else {2})
+        assert {info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"} == {2}
 
 
 def test_tracking_never_imports_mujoco():
