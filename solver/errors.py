@@ -38,6 +38,26 @@ class OutlineReachError(InsufficientMotionsError):
     """The pose given to the outlines is too uncertain to pair their contour points with the nearest edges."""
 
 
+class OutlineDisagreementError(InsufficientMotionsError):
+    """The outlines' pose lies further from the tracks' than their covariances allow.
+
+    Attributes:
+        chi2: the outlines' pose's Mahalanobis distance squared from the tracks' pose (``OutlineFusion``'s
+            ``disagreement_chi2``).
+        xi: (6,) float64 or None: the outlines' pose's perturbation from the tracks' (rad, m), where it was judged.
+        prior_information: (6, 6) float64 or None: the tracks' pose's information there.
+        outline_information: (6, 6) float64 or None: the outlines'.
+    """
+
+    def __init__(self, message: str, chi2: float, xi: object = None, prior_information: object = None,
+                 outline_information: object = None):
+        super().__init__(message)
+        self.chi2 = chi2
+        self.xi = xi
+        self.prior_information = prior_information
+        self.outline_information = outline_information
+
+
 class UnobservablePoseError(ArcCalibError):
     """The accepted motions cannot fix all six degrees of freedom of T_camera_base."""
 

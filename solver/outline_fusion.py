@@ -63,7 +63,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from solver.arrays import FloatArray
-from solver.errors import InsufficientMotionsError, InvalidInputError, OutlineMismatchError, OutlineReachError
+from solver.errors import (
+    InsufficientMotionsError,
+    InvalidInputError,
+    OutlineDisagreementError,
+    OutlineMismatchError,
+    OutlineReachError,
+)
 from solver.frames import check_transform, perturb, pose_difference
 from solver.observations import CameraIntrinsics
 from solver.outlines import (
@@ -234,6 +240,7 @@ class OutlineFusion:
             (``OutlineFusionConfig.polarity_offset_px``; 0.0 when not estimated), pixels.
         polarity_direction_px: (2,) float64, pixels: how much the shift grows with the outline's outward normal's
             image x and y (``OutlineFusionConfig.polarity_direction_px``; zeros when not estimated).
+        prior_scale: the factor the tracks' covariance was multiplied by (``fuse``'s ``prior_scale``; 1: as given).
     """
 
     T_camera_base: FloatArray
@@ -247,6 +254,7 @@ class OutlineFusion:
     rendered: int
     polarity_offset_px: float = 0.0
     polarity_direction_px: FloatArray = field(default_factory=lambda: np.zeros(2))
+    prior_scale: float = 1.0
 
 
 @dataclass
@@ -340,7 +348,7 @@ class OutlineAdjustment:
 
     def fuse(self, T_prior: FloatArray, covariance_prior: FloatArray, T_start: FloatArray | None = None,
              free_direction: FloatArray | None = None, start_covariance: FloatArray | None = None,
-             max_prior_px: float | None = None) -> OutlineFusion:
+             max_prior_px: float | None = None, prior_scale: float = 1.0) -> OutlineFusion:
         """The pose that fits the tracks' estimate (a Gaussian prior) and every image's outlines.
 
         Args:
@@ -357,12 +365,16 @@ class OutlineAdjustment:
                 of the prior's (the nearest edges are no guess from a start that fit them closely).
             max_prior_px: the reach allowed, px RMS, instead of ``OutlineFusionConfig.max_prior_px`` (a caller that
                 vouches for the start otherwise, e.g. by the outlines' search and their residual scale after).
+            prior_scale: the tracks' covariance is taken times this (>= 1) in the adjustment and the disagreement
+                test (a caller that has found it too narrow); the reach is judged as without it.
 
         Raises:
             InvalidInputError: a non-rigid pose, a covariance that is not finite, symmetric positive definite, or a
                 bad direction.
-            InsufficientMotionsError: images from fewer than ``min_groups`` motions, too few contour points pair
-                with an edge, or the fused pose disagrees with the tracks' (the message gives the distance).
+            InsufficientMotionsError: images from fewer than ``min_groups`` motions, or too few contour points pair
+                with an edge.
+            OutlineDisagreementError: the outlines' pose disagrees with the tracks' (``max_disagreement_chi2``; the
+                message and its ``chi2`` give the distance).
             OutlineMismatchError: from fewer than ``trusted_groups`` motions, the outlines' residual scale at the
                 adjusted pose exceeds ``max_early_sigma_px`` (the tracks' pose may be far off).
             OutlineReachError: the reach covariance's 1-sigma moves the contour points by more than ``max_prior_px``
@@ -370,6 +382,8 @@ class OutlineAdjustment:
         """
         T0 = check_transform(np.asarray(T_prior, dtype=np.float64), "T_prior")
         C0 = _symmetric(covariance_prior, "the prior covariance")
+        if not (np.isfinite(prior_scale) and prior_scale >= 1.0):
+            raise InvalidInputError(f"prior_scale must be a finite number >= 1, got {prior_scale!r}")
         try:
             L_inv = np.linalg.inv(np.linalg.cholesky(C0))
         except np.linalg.LinAlgError as exc:
@@ -386,7 +400,8 @@ class OutlineAdjustment:
             reach = _symmetric(start_covariance, "the start covariance")
         self._require_groups(self.config.min_groups if free_direction is None else self.config.min_groups_along)
         T = T0 if T_start is None else check_transform(np.asarray(T_start, dtype=np.float64), "T_start")
-        return self._fuse(T0, P0, T, reach, self.config.max_prior_px if max_prior_px is None else max_prior_px)
+        return self._fuse(T0, P0 / prior_scale, T, reach,
+                          self.config.max_prior_px if max_prior_px is None else max_prior_px, prior_scale)
 
     def search_along(self, T: FloatArray, direction: FloatArray, offsets: FloatArray) -> tuple[FloatArray, float]:
         """The translation along a direction the tracks leave free that puts the robot's contours on the edges.
@@ -448,7 +463,7 @@ class OutlineAdjustment:
                                            "needed")
 
     def _fuse(self, T0: FloatArray, P: FloatArray, T: FloatArray, reach_covariance: FloatArray,
-              max_prior_px: float) -> OutlineFusion:
+              max_prior_px: float, prior_scale: float = 1.0) -> OutlineFusion:
         """The adjustment from T with the tracks' pose T0 and information P (6, 6) as the prior; the combination."""
         cfg = self.config
         metric: FloatArray | None = None  # the fused pose's information, for convergence: set at the first pairing
@@ -486,20 +501,20 @@ class OutlineAdjustment:
         # the outlines fix less surely than their raw information says keeps the tracks' weight.
         d = pose_difference(T0, T)
         xi_outline = d + np.linalg.solve(normal.information, P @ d)
-        # (C_tracks + C_outline)^-1 in information form, well conditioned where the tracks leave a direction free
-        disagreement = float(xi_outline @ (P - P @ np.linalg.solve(P + information_outline, P)) @ xi_outline)
+        disagreement = disagreement_chi2(xi_outline, P, information_outline)
         if disagreement > cfg.max_disagreement_chi2:
-            raise InsufficientMotionsError(
+            raise OutlineDisagreementError(
                 f"the outlines disagree with the tracks: their pose lies {np.sqrt(disagreement):.1f} sigma from the "
                 f"tracks' (at most {np.sqrt(cfg.max_disagreement_chi2):.1f}); the robot model may not match the "
-                "robot, or other edges lie along its outline")
+                "robot, or other edges lie along its outline", disagreement, xi_outline, P, information_outline)
         cov = np.linalg.inv(P + information_outline)
         cov = 0.5 * (cov + cov.T)
         T_fused = perturb(T0, cov @ information_outline @ xi_outline)
         if self.n_groups < cfg.trusted_groups:  # the tracks' covariance from too few motions: the outlines' a floor
             cov = conservative_covariance(cov, cov_outline)
         return OutlineFusion(T_fused, cov, cov_outline, disagreement, normal.n_pairs, len(self._images), self.n_groups,
-                             normal.sigma_px, rendered, normal.polarity_offset_px, normal.polarity_direction_px)
+                             normal.sigma_px, rendered, normal.polarity_offset_px, normal.polarity_direction_px,
+                             prior_scale)
 
     def _capped_score(self, T: FloatArray, cap_px: float) -> float:
         """Mean over every image's contour points in front of the camera of min(d, cap_px)^2, px^2.
@@ -676,6 +691,41 @@ class OutlineAdjustment:
         if self.config.floor_px > 0:
             cov += self.config.floor_px**2 * np.linalg.inv(normal.mean_information)
         return 0.5 * (cov + cov.T)
+
+
+def disagreement_chi2(xi: FloatArray, prior_information: FloatArray, outline_information: FloatArray) -> float:
+    """The chi-square of a pose difference xi (6,) under C_tracks + C_outline, from their (6, 6) informations P, I.
+
+    xi^T (P - P (P + I)^-1 P) xi: (C_tracks + C_outline)^-1 in information form, well conditioned where the tracks
+    leave a direction free.
+    """
+    P = prior_information
+    return float(xi @ (P - P @ np.linalg.solve(P + outline_information, P)) @ xi)
+
+
+def consistent_prior_scale(failure: OutlineDisagreementError, target_chi2: float, max_scale: float) -> float | None:
+    """The least factor s in [1, max_scale] on the tracks' covariance that brings a disagreement to ``target_chi2``.
+
+    ``disagreement_chi2`` with the tracks' information P / s, at the failure's xi and informations (to first order:
+    the outlines' own pose does not move with s); bisection on log s. None when even ``max_scale`` leaves it above
+    the target, or the failure does not carry them.
+    """
+    xi, P, I_outline = failure.xi, failure.prior_information, failure.outline_information
+    if xi is None or P is None or I_outline is None:
+        return None
+
+    def chi2(scale: float) -> float:
+        return disagreement_chi2(np.asarray(xi), np.asarray(P) / scale, np.asarray(I_outline))
+
+    if chi2(1.0) <= target_chi2:
+        return 1.0
+    if chi2(max_scale) > target_chi2:
+        return None
+    lo, hi = 0.0, float(np.log(max_scale))
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if chi2(float(np.exp(mid))) > target_chi2 else (lo, mid)
+    return float(np.exp(hi))
 
 
 def _robust_scale(residuals: FloatArray) -> float:

@@ -159,8 +159,14 @@ def finish(run: CalibrationRun, args: argparse.Namespace, base_frame: str,
               f"(1-sigma {s.time_offset_std_s * 1e3:.2f} ms)")
     outlines = run.calibrator.outlines
     if outlines is not None:
-        print(f"outlines: {outlines.n_images} images of {outlines.n_groups} motions; "
-              + ("combined with the tracks" if s.outline is not None else f"not used ({s.outline_note})"))
+        if s.outline is None:
+            how = f"not used ({s.outline_note})"
+        elif s.outline.prior_scale > 1.0:
+            how = (f"combined with the tracks, whose pose disagreed with them: the tracks' covariance taken "
+                   f"{s.outline.prior_scale:.1f}x larger (not converged)")
+        else:
+            how = "combined with the tracks"
+        print(f"outlines: {outlines.n_images} images of {outlines.n_groups} motions; {how}")
     if truth is not None:
         rot, trans = pose_errors(T_camera_base, truth)
         print(f"true error: rotation {rot:.2e} rad ({np.degrees(rot):.4f} deg), translation {trans * 1e3:.3f} mm")

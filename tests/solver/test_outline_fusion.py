@@ -5,9 +5,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from solver.errors import InsufficientMotionsError, InvalidInputError
+from solver.errors import InsufficientMotionsError, InvalidInputError, OutlineDisagreementError
 from solver.frames import perturb, pose_difference
-from solver.outline_fusion import OutlineAdjustment, OutlineFusionConfig, OutlineImage
+from solver.outline_fusion import (
+    OutlineAdjustment,
+    OutlineFusionConfig,
+    OutlineImage,
+    consistent_prior_scale,
+    disagreement_chi2,
+)
 from solver.outlines import ImageEdges, image_edges
 from tests.solver.spheres import CAMERA, T_TRUE, project_px, render_spheres, sphere_contour
 
@@ -264,8 +270,48 @@ def test_a_start_the_outlines_fixed_before_judges_the_reach(edges):
 
 def test_outlines_that_disagree_with_the_tracks_are_refused(edges):
     prior = perturb(T_TRUE, np.array([0, 0, 0, 0, 0, 0.02]))  # 20 mm off with a 1-sigma of 0.1 mm
-    with pytest.raises(InsufficientMotionsError, match="disagree"):
+    with pytest.raises(OutlineDisagreementError, match="disagree") as refused:
         _adjustment(edges).fuse(prior, np.eye(6) * 1e-8)
+    failure = refused.value
+    assert failure.chi2 > 22.46 and failure.xi.shape == (6,)
+    # its xi is the outlines' pose from the tracks' (one Newton step from where the fit ended): about 20 mm along z
+    # back to the truth
+    assert abs(failure.xi[5] + 0.02) < 2e-3 and np.linalg.norm(failure.xi[3:5]) < 2e-3
+    assert failure.chi2 == pytest.approx(disagreement_chi2(failure.xi, failure.prior_information,
+                                                           failure.outline_information))
+
+
+def test_a_scaled_prior_is_the_prior_with_its_covariance_scaled(edges):
+    """``prior_scale`` s: the fusion of the covariance C taken as s C (the reach judged by the start's covariance)."""
+    prior = perturb(T_TRUE, np.array([0, 0, 0, 0, 0, 0.002]))  # 2 mm off
+    C = np.diag([1e-4, 1e-4, 1e-4, 5e-4, 5e-4, 5e-4]) ** 2
+    tight = np.diag([1e-4] * 6) ** 2
+    scaled = _adjustment(edges).fuse(prior, C, T_TRUE, start_covariance=tight, prior_scale=9.0)
+    plain = _adjustment(edges).fuse(prior, 9.0 * C, T_TRUE, start_covariance=tight)
+    assert scaled.prior_scale == 9.0 and plain.prior_scale == 1.0
+    assert np.linalg.norm(pose_difference(scaled.T_camera_base, plain.T_camera_base)) < 1e-9
+    np.testing.assert_allclose(scaled.covariance, plain.covariance, rtol=1e-6, atol=1e-18)
+    for bad in (0.5, np.nan, np.inf):
+        with pytest.raises(InvalidInputError, match="prior_scale"):
+            _adjustment(edges).fuse(prior, C, prior_scale=bad)
+
+
+def test_the_consistent_prior_scale_brings_the_disagreement_to_its_target():
+    rng = np.random.default_rng(4)
+    A, B = rng.normal(size=(6, 6)), rng.normal(size=(6, 6))
+    C_tracks, C_outline = A @ A.T * 1e-6 + np.eye(6) * 1e-8, B @ B.T * 1e-6 + np.eye(6) * 1e-8
+    xi = 4e-3 * rng.normal(size=6)
+
+    def chi2(scale):  # with the covariances themselves: (s C_tracks + C_outline)^-1
+        return float(xi @ np.linalg.solve(scale * C_tracks + C_outline, xi))
+
+    failure = OutlineDisagreementError("disagree", chi2(1.0), xi, np.linalg.inv(C_tracks), np.linalg.inv(C_outline))
+    assert chi2(1.0) > 12.59 and chi2(1e4) < 12.59
+    scale = consistent_prior_scale(failure, 12.59, 1e4)
+    assert scale is not None and scale > 1.0 and chi2(scale) == pytest.approx(12.59, rel=1e-6)
+    assert consistent_prior_scale(failure, chi2(1.0) + 1.0, 1e4) == 1.0  # already below the target
+    assert consistent_prior_scale(failure, 12.59, 1.001) is None  # the most allowed is not enough
+    assert consistent_prior_scale(OutlineDisagreementError("disagree", 50.0), 12.59, 1e4) is None  # nothing to use
 
 
 def test_too_few_motions_or_bad_priors_are_refused(edges):

@@ -725,6 +725,68 @@ def test_the_outlines_join_the_tracks_pose():
     assert s.seconds["outlines"] > 0
 
 
+def _biased_tracks_update(sigmas, config=None, biased=1):
+    """An outline episode of 8 motions, then ``biased`` more whose tracks' pose is moved ``sigmas`` of its 1-sigma
+    along the camera's x (a narrow covariance where the pose went: the tracks' on as-shipped castings). (calibrator,
+    T_true, the tracks' pose of the last update, the state after the 8th)."""
+    rng = np.random.default_rng(5)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=30), rng)
+    cal = Calibrator(K, PANDA.axis_and_point, config, contours=_sphere_contours)
+    for _ in range(8):
+        motion = scene.random_motion(rng)
+        cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
+    before = cal.state
+    assert before.outline is not None
+    biased_poses: list[np.ndarray] = []
+    weak = cal._without_weak_motions
+
+    def moved(refined):
+        refined = weak(refined)
+        xi = np.zeros(6)
+        xi[3] = sigmas * np.sqrt(refined.covariance[3, 3])
+        biased_poses.append(perturb(refined.T_camera_base, xi))
+        return replace(refined, T_camera_base=biased_poses[-1])
+
+    cal._without_weak_motions = moved
+    for _ in range(biased):
+        motion = scene.random_motion(rng)
+        cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
+    return cal, T, biased_poses[-1], before
+
+
+def test_outlines_that_agreed_hold_the_pose_when_the_tracks_pose_goes_astray():
+    cal, T, tracks_pose, before = _biased_tracks_update(10.0)
+    s = cal.state
+    assert s.outline is not None and s.outline.prior_scale > 1.0 and s.outline_note == "", s.outline_note
+    assert not s.converged  # the tracks disagree: not a pose to stop at
+    assert np.array_equal(s.T_camera_base, s.outline.T_camera_base)
+    xi = pose_difference(s.T_camera_base, T)
+    assert xi @ np.linalg.solve(s.covariance, xi) < CHI2_6_999
+    assert pose_errors(s.T_camera_base, T)[1] < 0.3 * pose_errors(tracks_pose, T)[1]
+    # off: the tracks' pose alone, and why
+    off, _, off_tracks, _ = _biased_tracks_update(10.0, CalibratorConfig(hold_outlines=False))
+    assert off.state.outline is None and off.state.outline_note.startswith("OutlineDisagreementError")
+    np.testing.assert_array_equal(off.state.T_camera_base, off_tracks)
+
+
+def test_outlines_hold_the_pose_for_a_few_updates_in_a_row_only():
+    from solver.pipeline import HOLD_MAX_UPDATES
+
+    held, _, _, _ = _biased_tracks_update(10.0, biased=HOLD_MAX_UPDATES)
+    assert held.state.outline is not None and held.state.outline.prior_scale > 1.0
+    cal, _, tracks_pose, _ = _biased_tracks_update(10.0, biased=HOLD_MAX_UPDATES + 1)
+    assert cal.state.outline is None and cal.state.outline_note.startswith("OutlineDisagreementError")
+    np.testing.assert_array_equal(cal.state.T_camera_base, tracks_pose)
+
+
+def test_outlines_do_not_hold_a_pose_the_tracks_left_by_too_far():
+    cal, _, tracks_pose, _ = _biased_tracks_update(1000.0)
+    s = cal.state
+    assert s.outline is None and s.outline_note.startswith("OutlineDisagreementError") and "not held" in s.outline_note
+    np.testing.assert_array_equal(s.T_camera_base, tracks_pose)
+
+
 def test_too_few_outline_motions_leave_the_tracks_pose():
     config = CalibratorConfig(outlines=OutlineFusionConfig(min_groups=20))
     alone, joint, _ = _outline_episode(5, 6, config)

@@ -290,6 +290,7 @@ def test_the_outline_stage_joins_a_recordings_calibration(recording, tmp_path, c
     assert abs(outlines["edge_shift_px"]) < 0.5 * 3  # estimated under a 0.5 px prior: within its 3-sigma
     direction = outlines["edge_shift_direction_px"]  # under a 0.3 px prior each
     assert len(direction) == 2 and all(abs(x) < 0.3 * 3 for x in direction), direction
+    assert outlines["tracks_covariance_scale"] == 1.0  # the outlines and the tracks agree: nothing held
     assert "combined with the tracks" in text
     T_true = np.asarray(json.loads(ground_truth_path(recording).read_text())["T_camera_base"])
     xi = pose_difference(np.asarray(result["T_camera_base"]), T_true)
