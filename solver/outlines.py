@@ -143,9 +143,9 @@ def _bilinear(image: NDArray[np.float32], rows: FloatArray, cols: FloatArray) ->
     y0, x0 = y.astype(np.intp), x.astype(np.intp)  # floor: both are >= 0
     y1, x1 = np.minimum(y0 + 1, h - 1), np.minimum(x0 + 1, w - 1)
     fy, fx = y - y0, x - x0
-    # each neighbour's weight, then its value: rounded as map_coordinates rounds (its float32 results to the bit)
-    return (((1.0 - fy) * (1.0 - fx)) * image[y0, x0] + ((1.0 - fy) * fx) * image[y0, x1]
-            + (fy * (1.0 - fx)) * image[y1, x0] + (fy * fx) * image[y1, x1])
+    # each neighbour's value times its row's weight, then its column's, summed in order: map_coordinates' arithmetic
+    return (image[y0, x0] * (1.0 - fy) * (1.0 - fx) + image[y0, x1] * (1.0 - fy) * fx
+            + image[y1, x0] * fy * (1.0 - fx) + image[y1, x1] * fy * fx)
 
 
 @dataclass(frozen=True)
