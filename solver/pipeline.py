@@ -160,12 +160,11 @@ class CalibratorConfig:
             outlines in those images (from where the last update's combination ended), and the state reports the
             combined pose and covariance (``CalibrationState.outline``); the tracks' own chain of estimates, which
             the next update starts from, is not changed by it.
-        hold_outlines: when the outlines, fused with the tracks at the last update, now disagree with the tracks' pose
+        hold_outlines: when the outlines, fused (or rescued) at the last update, now disagree with the tracks' pose
             (``OutlineDisagreementError``), adjust them again with the tracks' covariance scaled by the least factor
-            that makes the two consistent (``Calibrator._hold_outlines``) and report that pose when it stays within
-            the last update's pose (at most ``HOLD_MAX_UPDATES`` updates in a row); such an update never declares
-            convergence. False: the tracks' pose alone, as
-            before.
+            that makes the two consistent (``Calibrator._hold_outlines``) and report that pose when it is the last
+            update's (at most ``HOLD_MAX_UPDATES`` updates in a row); such an update never declares convergence.
+            False: the tracks' pose alone, as before.
         blas_threads: BLAS threads while the calibrator works (``add_motion``, ``update``), restored after; None:
             leave BLAS as it is (``solver.threads``, where the measurement is).
     """
@@ -1121,10 +1120,10 @@ class Calibrator:
 
     def _hold_outlines(self, refined: RefinementResult, failure: OutlineDisagreementError
                        ) -> tuple[OutlineFusion | None, Exception | None]:
-        """The outlines fused at the last update, now in disagreement with the tracks' pose ``refined``.
+        """The outlines fused (or rescued) at the last update, now in disagreement with the tracks' pose ``refined``.
 
-        The outlines agreed with the tracks before, so the robot model matches its images; a new disagreement is the
-        tracks' covariance that is too narrow for where their pose went (on as-shipped castings most tracks slide:
+        The outlines fitted the images before, so the robot model matches them; a new disagreement is the tracks'
+        covariance that is too narrow for where their pose went (on as-shipped castings most tracks slide:
         seen, an xArm 6 fused 0.2 mm off for three updates, then the tracks' pose 54 mm and 7 mrad off at motion 7,
         5.8 sigma from the outlines', and 64 mm off reported for two updates). The outlines are adjusted again from
         the last fused pose with the tracks' covariance scaled by the least factor that brings the disagreement to
