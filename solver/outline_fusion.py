@@ -463,8 +463,11 @@ class OutlineAdjustment:
                                            "needed")
 
     def _fuse(self, T0: FloatArray, P: FloatArray, T: FloatArray, reach_covariance: FloatArray,
-              max_prior_px: float, prior_scale: float = 1.0) -> OutlineFusion:
-        """The adjustment from T with the tracks' pose T0 and information P (6, 6) as the prior; the combination."""
+              max_prior_px: float, prior_scale: float) -> OutlineFusion:
+        """The adjustment from T with the tracks' pose T0 and information P (6, 6) as the prior; the combination.
+
+        ``prior_scale``: the factor already applied to P (it is reported with the result).
+        """
         cfg = self.config
         metric: FloatArray | None = None  # the fused pose's information, for convergence: set at the first pairing
         rendered = 0

@@ -1142,11 +1142,9 @@ class Calibrator:
         if scale is None:
             return None, OutlineDisagreementError(
                 f"{failure}; not held: the tracks' covariance would need more than {HOLD_MAX_SCALE:g}x", failure.chi2)
-        try:
-            held = self.outlines.fuse(refined.T_camera_base, refined.covariance, last_T, start_covariance=last_cov,
-                                      prior_scale=scale)
-        except (ArcCalibError, np.linalg.LinAlgError) as exc:
-            return None, OutlineDisagreementError(f"{failure}; not held: {exc}", failure.chi2)
+        held, why = self._fuse_outlines(refined, scale)
+        if held is None:
+            return None, OutlineDisagreementError(f"{failure}; not held: {why}", failure.chi2)
         moved = _transform_chi2(held.T_camera_base, last_T, last_cov + held.covariance)
         if moved > FAMILY_SAME_CHI2:
             return None, OutlineDisagreementError(
@@ -1154,10 +1152,12 @@ class Calibrator:
                 f"{np.sqrt(moved):.1f} sigma from the last update's", failure.chi2)
         return held, None
 
-    def _fuse_outlines(self, refined: RefinementResult) -> tuple[OutlineFusion | None, Exception | None]:
+    def _fuse_outlines(self, refined: RefinementResult, prior_scale: float = 1.0
+                       ) -> tuple[OutlineFusion | None, Exception | None]:
         """The outlines adjusted with the tracks' pose ``refined``: (the fusion, None) or (None, why they could not be).
 
-        Without outline images: (None, None). The adjustment goes on from where the last one ended. Its
+        Without outline images: (None, None). The adjustment goes on from where the last one ended, with the tracks'
+        covariance taken ``prior_scale`` times (``OutlineAdjustment.fuse``; ``_hold_outlines``). Its
         ``OutlineMismatchError`` refuses a first pose in ``update``: from the first few motions the linear
         calibration and the pose family can settle on a wrong branch that the tracks then fit (seen: a realistic
         720p Panda 1.84 rad and 379 mm off for three motions from the family, 1-sigma 0.03 rad and 62 mm; a 720p
@@ -1173,7 +1173,8 @@ class Calibrator:
         try:
             return self.outlines.fuse(refined.T_camera_base, refined.covariance,
                                       last.T_camera_base if last is not None else None,
-                                      start_covariance=self.state.covariance if last is not None else None), None
+                                      start_covariance=self.state.covariance if last is not None else None,
+                                      prior_scale=prior_scale), None
         except (ArcCalibError, np.linalg.LinAlgError) as exc:
             return None, exc
 
