@@ -457,6 +457,27 @@ class OutlineAdjustment:
                                                f"{cap:g} px of the images' edges")
         return best_T, step
 
+    def capped_scores(self, T_render: FloatArray, poses: FloatArray, cap_px: float) -> FloatArray:
+        """(N,) px^2: how well each of ``poses`` (N, 4, 4) puts the robot's contours on the images' edges.
+
+        Every image's contour is rendered at ``T_render`` (4, 4) (so the poses should lie near it), then each pose
+        is scored as ``search_along`` scores: the mean over contour points in front of the camera of min(d, cap_px)^2,
+        d the distance to the nearest edge of a matching direction; NaN where no point is in front.
+
+        Raises:
+            InvalidInputError: a non-rigid pose or a cap that is not positive.
+            InsufficientMotionsError: no images.
+        """
+        T0 = check_transform(np.asarray(T_render, dtype=np.float64), "T_render")
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+        if not cap_px > 0:
+            raise InvalidInputError(f"cap_px must be > 0, got {cap_px}")
+        if not self._images:
+            raise InsufficientMotionsError("no outline images to score with")
+        for cached in self._images:
+            cached.render(self.renderer, T0, self.intrinsics)
+        return np.array([self._capped_score(check_transform(T, "a pose"), cap_px) for T in poses])
+
     def _require_groups(self, fewest: int) -> None:
         if self.n_groups < fewest:
             raise InsufficientMotionsError(f"outline images from {self.n_groups} motion(s); at least {fewest} are "

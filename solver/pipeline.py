@@ -49,6 +49,7 @@ from solver.frames import pose_difference, transform_from_rt
 from solver.kinematics import AxisFunction
 from solver.motion import MotionConfig, MotionGeometry, estimate_motion_geometry, track_moved
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
+from solver.one_axis import OneAxisSearch, search_one_axis
 from solver.outline_fusion import (
     ContourRenderer,
     OutlineAdjustment,
@@ -165,6 +166,10 @@ class CalibratorConfig:
             that makes the two consistent (``Calibrator._hold_outlines``) and report that pose when it is the last
             update's (at most ``HOLD_MAX_UPDATES`` updates in a row); such an update never declares convergence.
             False: the tracks' pose alone, as before.
+        one_axis: when there is no pose yet and nothing for the outlines' rescue to start from (no linear pose, no
+            two non-parallel axes) but a motion has an axis, the family of poses that axis allows is searched with
+            every motion's tracks and then the outlines (``solver.one_axis``), and the outlines are adjusted from the
+            best member; the result is taken on the rescue's own tests (``Calibrator._one_axis_rescue``). None: off.
         blas_threads: BLAS threads while the calibrator works (``add_motion``, ``update``), restored after; None:
             leave BLAS as it is (``solver.threads``, where the measurement is).
     """
@@ -195,6 +200,7 @@ class CalibratorConfig:
     relinearize_every: int = 20
     outlines: OutlineFusionConfig = field(default_factory=OutlineFusionConfig)
     hold_outlines: bool = True
+    one_axis: OneAxisSearch | None = field(default_factory=OneAxisSearch)
     blas_threads: int | None = 1
 
     def __post_init__(self) -> None:
@@ -365,6 +371,9 @@ HOLD_MAX_SCALE = 100.0
 #: this many updates in a row (outlines that had settled on a wrong pose with the tracks must not hold it for good).
 HOLD_TARGET_CHI2 = 12.59
 HOLD_MAX_UPDATES = 3
+#: ``Calibrator._outlines_alone``: the prior on its start, 1-sigma (rad, m): as wide as the one-axis search's first
+#: outline round (``solver.one_axis``), so the outlines alone place the pose.
+OUTLINES_ALONE_PRIOR_STD = (0.05, 0.05)
 #: Poses along the tracks' free direction that ``Calibrator._outline_rescue`` first scores with the outlines: where
 #: the motions' joints lie this many log-spaced distances from the camera within ``family_distances`` (0.3-5 m: 7 %
 #: apart; ``OutlineAdjustment.search_along`` then searches between the best one's neighbours).
@@ -767,7 +776,55 @@ class Calibrator:
             fused, why = self._rescue_near(rescued, tracks)
             if fused is not None:
                 return fused, ""
+        held = self.state.T_camera_base if self.state.outline is not None else None
+        if held is not None:
+            # The tracks could neither fix the pose nor agree with the outlines near the last pose, which the outlines
+            # fused or rescued (the tracks' pose wide and biased by sliding tracks: seen, as-shipped iiwas rescued
+            # 1.31 and 0.45 mm off at motion 4, at 5 the tracks' pose 18 and 37 sigma from the outlines'; an
+            # as-shipped xArm 6 fused 0.41 mm off at 4, at 5 the tracks' 1-sigma 73 mm): the outlines alone, from it.
+            fused, why_alone = self._outlines_alone(held, "the outlines alone could not hold the last pose")
+            if fused is not None:
+                return fused, ""
+            why = f"{why}; {why_alone}" if why else why_alone
+        if not starts and with_axis and cfg.one_axis is not None:
+            return self._one_axis_rescue(live, with_axis)
         return None, why
+
+    def _outlines_alone(self, T: FloatArray, prefix: str) -> tuple[OutlineFusion | None, str]:
+        """The outlines adjusted alone from T (4, 4): (the fusion, "") or (None, why not).
+
+        Their prior is too wide to hold them (``OUTLINES_ALONE_PRIOR_STD``); the fusion is taken when it passes the
+        rescue's tests (``_accepted_rescue``).
+        """
+        assert self.outlines is not None
+        prior = np.diag(np.repeat(np.square(OUTLINES_ALONE_PRIOR_STD), 3))
+        try:
+            fused = self.outlines.fuse(T, prior, T, max_prior_px=float("inf"))
+        except (ArcCalibError, np.linalg.LinAlgError) as exc:
+            return None, f"{prefix}: {type(exc).__name__}: {exc}"
+        return self._accepted_rescue(fused, prefix)
+
+    def _one_axis_rescue(self, live: list[int], with_axis: list[int]) -> tuple[OutlineFusion | None, str]:
+        """The outlines' rescue from the family of poses one motion's axis allows (``CalibratorConfig.one_axis``).
+
+        The motion whose axis the most tracks follow; its family searched with a subsample of every live motion's
+        tracks and then the outlines (``search_one_axis``); the outlines adjusted alone from the best member
+        (``_outlines_alone``: the axis's direction is free again), taken on the rescue's tests (the outlines' residual
+        scale, the 1-sigma bounds).
+
+        Returns:
+            (the fusion, "") or (None, why not).
+        """
+        assert self.outlines is not None and self.config.one_axis is not None
+        prefix = "no start from one motion's axis"
+        k = max(with_axis, key=lambda j: int(np.sum(self._motions[j].geometry.track_inliers)))
+        m = self._motions[k]
+        try:
+            T, _ = search_one_axis(self._screen_track_set(live), m.axis_base, m.point_base, m.geometry.axis_cam,
+                                   m.geometry.reference_cam, self.intrinsics, self.outlines, self.config.one_axis)
+        except ArcCalibError as exc:
+            return None, f"{prefix} (motion {k + 1}): {type(exc).__name__}: {exc}"
+        return self._outlines_alone(T, f"{prefix} (motion {k + 1})")
 
     def _rescue_from(self, T: FloatArray, live: list[int], joints: FloatArray, tracks: TrackSet,
                      max_prior_px: float | None = None) -> tuple[OutlineFusion | None, str]:

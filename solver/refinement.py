@@ -1502,6 +1502,22 @@ def screen_start(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig,
     return T, total / (2 * tracks.track.size)
 
 
+def linear_track_score(tracks: TrackSet, T_camera_base: FloatArray, cap_px: float) -> float:
+    """How well a pose lets every track be one rigid point, without an adjustment: px^2, comparable between poses.
+
+    Each track's point is triangulated linearly at the pose (``triangulate_tracks``); the score is the mean over every
+    observation of min(r^2, cap_px^2) per coordinate, r its reprojection residual, and cap_px^2 for every observation
+    of a track that cannot be triangulated or falls behind the camera (as ``screen_start``, with no pass of the
+    adjustment: thousands of poses can be scored, e.g. ``solver.one_axis.search_one_axis``).
+    """
+    points, ok = triangulate_tracks(tracks, T_camera_base)
+    pc, _ = track_camera_points(tracks, T_camera_base, points - tracks.pivot)
+    good = ok[tracks.track] & (pc[:, 2] > 0)
+    pc[~good, 2] = 1.0  # any depth: these observations cost the cap
+    r2 = np.minimum(np.sum(track_pixel_residuals(tracks, pc) ** 2, axis=1) / 2, cap_px**2)
+    return float(np.mean(np.where(good, r2, cap_px**2)))
+
+
 def start_points(tracks: TrackSet, T_init: FloatArray, points_init: FloatArray | None = None,
                  what: str = "tracks") -> tuple[FloatArray, NDArray[np.bool_]]:
     """Where an adjustment's points start: (T, 3) m base-frame points and (T,) bool, the tracks it can use.

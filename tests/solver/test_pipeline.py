@@ -34,6 +34,7 @@ from solver.camera import pixels_from_camera_points
 from solver.errors import InsufficientMotionsError, OutlineMismatchError
 from solver.frames import perturb
 from solver.outline_fusion import OutlineAdjustment, OutlineFusionConfig, OutlineImage
+from solver.one_axis import OneAxisSearch
 from solver.outlines import ImageEdges
 from solver.pipeline import CONICS_NOT_RIGID, CONICS_NOT_RUN, FOCAL_SCALE_TOLERANCE
 from solver.rigid_axis import RigidAxisConfig
@@ -829,8 +830,8 @@ def test_a_first_pose_the_outlines_cannot_fit_is_refused(monkeypatch, mismatch, 
     T = sample_camera_pose(rng)
     scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=20),
                            rng)
-    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(rigid_axis=None, family_start=True),
-                     contours=_sphere_contours)
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(rigid_axis=None, family_start=True, one_axis=None),
+                     contours=_sphere_contours)  # (one axis and the outlines would give a pose before the family)
     if mismatch:
         def loose(*args, **kwargs):
             raise OutlineMismatchError("from 3 motions the outlines fit their edges too loosely")
@@ -885,6 +886,34 @@ def test_a_rescued_pose_starts_the_next_rescue():
     assert s.start == "outlines" and len(starts) == 1  # the first start served
     rot, trans = pose_errors(s.T_camera_base, T)
     assert rot < NOISY_ROT and trans < NOISY_TRANS
+
+
+@pytest.mark.parametrize("search", [True, False])
+def test_one_axis_searched_with_the_tracks_and_the_outlines_gives_a_first_pose(monkeypatch, search):
+    """Only the first motion gives an axis: no linear calibration, no pose family; the other motions carry tracks
+    and every motion outline images (the joints' spheres). The poses that one axis allows, searched with every
+    motion's tracks and then the outlines, give a first pose near the truth on the outlines' tests; without the
+    search there is none, and the message says why."""
+    _stage_one_for(monkeypatch, 1)
+    rng = np.random.default_rng(4)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=30),
+                           rng)
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(rigid_axis=None, one_axis=OneAxisSearch() if search
+                                                               else None), contours=_sphere_contours)
+    for _ in range(3):  # the outlines' rescue needs three motions' images
+        motion = scene.random_motion(rng)
+        cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
+    s = cal.state
+    assert sum(cal.motion_geometry(k) is not None for k in range(3)) == 1
+    if search:
+        assert s.T_camera_base is not None and s.start == "outlines" and not s.converged, s.message
+        rot, trans = pose_errors(s.T_camera_base, T)
+        assert rot < NOISY_ROT and trans < NOISY_TRANS
+        chi2 = pose_difference(s.T_camera_base, T) @ np.linalg.solve(s.covariance, pose_difference(s.T_camera_base, T))
+        assert chi2 < 22.46  # its covariance holds the truth (chi-square, 6 dof, 0.999)
+    else:
+        assert s.T_camera_base is None and "1 motion(s) with an axis" in s.message
 
 
 def test_a_rescue_whose_outlines_fit_loosely_gives_no_pose(monkeypatch):

@@ -1,0 +1,187 @@
+"""A first pose from one motion's axis, the tracks of every motion and the robot's outlines (ours).
+
+One motion's axis, seen by the camera (its direction A^c and the plane through the camera centre that holds it,
+``solver.motion.MotionGeometry``), fixes the camera pose up to three numbers: the turn phi of the robot about A^c
+(R = Rot(A^c, phi) R0, R0 the least rotation taking the joint's axis a_b onto A^c), and where the joint's point d_b
+lies on the axis's line, which the image fixes only up to scale: at distance d from the camera, along the bearing
+psi in the plane (ray(psi) = cos psi f + sin psi A^c, f the plane's direction perpendicular to A^c). So
+T = [R | d ray(psi) - R d_b]. On smooth castings a motion often has an axis while the others' tracks mostly slide
+(seen: as-shipped iiwa and xArm 6 at 1080p, 7 and 6 of 10 runs with no pose by motion 5, five with one axis), and
+neither the linear calibration (three axes) nor the pose family (two) can start.
+
+``search_one_axis`` scores the family on a grid with every motion's tracks (``linear_track_score``: each track
+triangulated at the pose, its residuals capped), refines the best on a finer grid, then scores the neighbourhood with
+the outlines (their contour points' capped distances to the images' edges, ``OutlineAdjustment.capped_scores``) in
+two narrowing rounds. Its result is a start for the outlines' own adjustment (``OutlineAdjustment.fuse``), which
+also frees the axis's direction; the calibrator accepts it only on the outlines' tests (``Calibrator``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from solver.arrays import FloatArray
+from solver.camera import pixels_from_camera_points
+from solver.errors import InsufficientMotionsError, InvalidInputError
+from solver.observations import CameraIntrinsics
+from solver.outline_fusion import OutlineAdjustment
+from solver.refinement import TrackSet, linear_track_score
+
+__all__ = ["OneAxisSearch", "axis_frame", "one_axis_poses", "search_one_axis", "visible_bearings"]
+
+
+@dataclass(frozen=True)
+class OneAxisSearch:
+    """The grids of ``search_one_axis``.
+
+    Attributes:
+        turn_step_deg: the coarse grid's step in phi (all turns), degrees.
+        bearing_step_deg: its step in psi, degrees (bearings that point into the image's neighbourhood only).
+        distances: m, the joint's point is searched this far from the camera ...
+        distance_samples: ... at this many log-spaced distances.
+        fine_turn_deg: the fine grid spans phi +- this (1-degree steps) ...
+        fine_distance: ... and d within a factor of 1 +- this (11 samples), psi +- one coarse step (9 samples).
+        outline_rounds: per round (phi +- degrees, psi +- degrees, d within 1 +- fraction, the cap in px), each
+            13 x 7 x 9 poses about the best so far, the contours rendered at it.
+        track_cap_px: the tracks' residuals are capped at this, px.
+        image_margin: bearings whose ray projects within this fraction of the image's size outside it are kept.
+    """
+
+    turn_step_deg: float = 10.0
+    bearing_step_deg: float = 4.0
+    distances: tuple[float, float] = (0.3, 5.0)
+    distance_samples: int = 16
+    fine_turn_deg: float = 10.0
+    fine_distance: float = 0.15
+    outline_rounds: tuple[tuple[float, float, float, float], ...] = ((12.0, 2.0, 0.2, 12.0), (3.0, 0.5, 0.05, 6.0))
+    track_cap_px: float = 3.0
+    image_margin: float = 0.5
+
+    def __post_init__(self) -> None:
+        lo, hi = self.distances
+        if not (0 < self.turn_step_deg <= 90 and 0 < self.bearing_step_deg <= 45 and 0 < lo < hi
+                and self.distance_samples >= 2 and self.fine_turn_deg > 0 and 0 < self.fine_distance < 1
+                and self.track_cap_px > 0 and self.image_margin >= 0 and self.outline_rounds
+                and all(len(r) == 4 and min(r) > 0 and r[2] < 1 for r in self.outline_rounds)):
+            raise InvalidInputError("OneAxisSearch: steps, distances, caps and rounds must be positive (fractions < 1)")
+
+
+def axis_frame(axis_base: FloatArray, axis_cam: FloatArray, reference_cam: FloatArray
+               ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """R0 (3, 3), the least rotation taking a_b (3,) onto A^c (3,), and the unit A^c and f (3,) of the family.
+
+    f: the unit direction, perpendicular to A^c, of the plane through the camera centre and the axis, towards the
+    axis's line (from the reference ray (3,), a ray towards a point of it; either sign: taken in front of the camera).
+    """
+    a_b = np.asarray(axis_base, dtype=np.float64) / np.linalg.norm(axis_base)
+    a_c = np.asarray(axis_cam, dtype=np.float64) / np.linalg.norm(axis_cam)
+    ref = np.asarray(reference_cam, dtype=np.float64)
+    ref = ref if ref[2] >= 0 else -ref  # the line through the camera centre, towards the side in front of it
+    f = ref - (ref @ a_c) * a_c
+    if np.linalg.norm(f) < 1e-9:
+        raise InvalidInputError("the reference ray lies along the axis: the axis's plane is undefined")
+    R0 = Rotation.align_vectors(a_c[None], a_b[None])[0].as_matrix()
+    return R0, a_c, f / np.linalg.norm(f)
+
+
+def one_axis_poses(axis_base: FloatArray, point_base: FloatArray, axis_cam: FloatArray, reference_cam: FloatArray,
+                   turns: FloatArray, bearings: FloatArray, distances: FloatArray) -> FloatArray:
+    """(P x B x D, 4, 4) T_camera_base: the family's members at every turn (P,), bearing (B,) and distance (D,).
+
+    Turn-major, then bearing, then distance. a_b (3,) and d_b (3,) m: the joint's axis and a point of it in the base
+    frame; A^c (3,) and the reference ray (3,): the motion's axis and plane in the camera frame (module doc).
+    """
+    R0, a_c, f = axis_frame(axis_base, axis_cam, reference_cam)
+    turns, bearings, distances = (np.asarray(v, dtype=np.float64).reshape(-1) for v in (turns, bearings, distances))
+    Rs = Rotation.from_rotvec(turns[:, None] * a_c[None, :]).as_matrix() @ R0  # (P, 3, 3)
+    rays = np.cos(bearings)[:, None] * f + np.sin(bearings)[:, None] * a_c  # (B, 3)
+    joint_cam = distances[None, :, None] * rays[:, None, :]  # (B, D, 3)
+    t = joint_cam[None] - (Rs @ np.asarray(point_base, dtype=np.float64))[:, None, None, :]  # (P, B, D, 3)
+    T = np.zeros((len(turns), len(bearings), len(distances), 4, 4))
+    T[..., :3, :3] = Rs[:, None, None]
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T.reshape(-1, 4, 4)
+
+
+def visible_bearings(axis_cam: FloatArray, reference_cam: FloatArray, intrinsics: CameraIntrinsics,
+                     step: float, margin: float) -> FloatArray:
+    """(B,) rad: the bearings psi, on a grid of ``step`` rad, at which the joint's point can be.
+
+    Those whose ray is in front of the camera and projects into the image grown by ``margin`` of its width and height
+    on every side.
+    """
+    _, a_c, f = axis_frame(axis_cam, axis_cam, reference_cam)
+    psi = np.arange(-np.pi / 2 + step / 2, np.pi / 2, step)
+    rays = np.cos(psi)[:, None] * f + np.sin(psi)[:, None] * a_c
+    front = rays[:, 2] > 0.05
+    if not front.any():
+        return np.zeros(0)
+    uv = pixels_from_camera_points(rays[front], intrinsics)
+    w, h = intrinsics.width, intrinsics.height
+    inside = ((uv[:, 0] >= -margin * w) & (uv[:, 0] <= (1 + margin) * w)
+              & (uv[:, 1] >= -margin * h) & (uv[:, 1] <= (1 + margin) * h))
+    return psi[front][inside]
+
+
+def _best(scores: FloatArray) -> int:
+    finite = np.where(np.isfinite(scores), scores, np.inf)
+    if not np.isfinite(finite).any():
+        raise InsufficientMotionsError("no member of the one-axis family sees the tracks or the outlines")
+    return int(np.argmin(finite))
+
+
+def search_one_axis(tracks: TrackSet, axis_base: FloatArray, point_base: FloatArray, axis_cam: FloatArray,
+                    reference_cam: FloatArray, intrinsics: CameraIntrinsics, outlines: OutlineAdjustment,
+                    config: OneAxisSearch | None = None) -> tuple[FloatArray, float]:
+    """The member of one motion's family (module doc) that the tracks and then the outlines fit best.
+
+    Args:
+        tracks: every live motion's tracks (a subsample serves: ``Calibrator``'s screening set).
+        axis_base: (3,) the motion's joint axis, base frame.
+        point_base: (3,) m, a point of it.
+        axis_cam: (3,) its axis in the camera frame (stage one) ...
+        reference_cam: (3,) ... and reference ray.
+        intrinsics: the camera.
+        outlines: the outline stage with its images; their contours are rendered at each round's centre.
+        config: the grids; ``OneAxisSearch()`` if None.
+
+    Returns:
+        T_camera_base (4, 4) and its outline score (mean capped squared distance, px^2, at the last round's cap).
+
+    Raises:
+        InsufficientMotionsError: no bearing looks at the image, or no member sees the tracks or the outlines.
+    """
+    cfg = config or OneAxisSearch()
+    step = np.radians(cfg.bearing_step_deg)
+    bearings = visible_bearings(axis_cam, reference_cam, intrinsics, step, cfg.image_margin)
+    if bearings.size == 0:
+        raise InsufficientMotionsError("no bearing of the axis's plane looks into the image")
+
+    def poses(turns: FloatArray, psi: FloatArray, d: FloatArray) -> tuple[FloatArray, tuple[FloatArray, ...]]:
+        grid = np.meshgrid(turns, psi, d, indexing="ij")
+        return (one_axis_poses(axis_base, point_base, axis_cam, reference_cam, turns, psi, d),
+                tuple(g.reshape(-1) for g in grid))
+
+    def by_tracks(Ts: FloatArray) -> FloatArray:
+        return np.array([linear_track_score(tracks, T, cfg.track_cap_px) for T in Ts])
+
+    Ts, (phi, psi, d) = poses(np.radians(np.arange(0.0, 360.0, cfg.turn_step_deg)), bearings,
+                              np.geomspace(*cfg.distances, cfg.distance_samples))
+    i = _best(by_tracks(Ts))
+    Ts, (phi, psi, d) = poses(phi[i] + np.radians(np.arange(-cfg.fine_turn_deg, cfg.fine_turn_deg + 0.5, 1.0)),
+                              psi[i] + np.linspace(-step, step, 9),
+                              d[i] * np.geomspace(1 - cfg.fine_distance, 1 + cfg.fine_distance, 11))
+    i = _best(by_tracks(Ts))
+    centre, score = Ts[i], float("nan")
+    for turn_deg, bearing_deg, spread, cap_px in cfg.outline_rounds:
+        Ts, (phi, psi, d) = poses(phi[i] + np.radians(np.linspace(-turn_deg, turn_deg, 13)),
+                                  psi[i] + np.radians(np.linspace(-bearing_deg, bearing_deg, 7)),
+                                  d[i] * np.geomspace(1 - spread, 1 + spread, 9))
+        scores = outlines.capped_scores(centre, Ts, cap_px)
+        i = _best(scores)
+        centre, score = Ts[i], float(scores[i])
+    return centre, score

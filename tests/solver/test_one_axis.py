@@ -1,0 +1,115 @@
+"""solver.one_axis: the poses one motion's axis allows, and the tracks' linear score, against known cameras."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from solver import PANDA, SyntheticConfig, SyntheticScene, d415_intrinsics, sample_camera_pose
+from solver.errors import InvalidInputError
+from solver.frames import perturb, pose_errors
+from solver.one_axis import OneAxisSearch, axis_frame, one_axis_poses, visible_bearings
+from solver.refinement import build_track_set, linear_track_score
+
+K = d415_intrinsics()
+
+
+def _true_member(T: np.ndarray, q: np.ndarray, joint: int):
+    """A camera T and a joint's axis: (a_b, d_b, A^c, a reference ray) and the truth's (phi, psi, d), found apart
+    from the family's parametrization: phi from the rotation R R0^T (which turns about A^c), psi and d from where
+    the camera sees the joint's point."""
+    a_b, d_b = PANDA.axis_and_point(q, joint)
+    R, t = T[:3, :3], T[:3, 3]
+    a_c = R @ a_b
+    p_c = R @ d_b + t
+    reference = p_c + 0.3 * a_c  # another point of the axis's line
+    reference /= np.linalg.norm(reference)
+    R0, _, f = axis_frame(a_b, a_c, reference)
+    turn = Rotation.from_matrix(R @ R0.T).as_rotvec()
+    assert np.linalg.norm(np.cross(turn, a_c)) < 1e-9  # R R0^T turns about A^c
+    return (a_b, d_b, a_c, reference), (float(turn @ a_c), float(np.arctan2(p_c @ a_c, p_c @ f)),
+                                        float(np.linalg.norm(p_c)))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_true_pose_is_the_member_at_its_own_turn_bearing_and_distance(seed):
+    rng = np.random.default_rng(seed)
+    T = sample_camera_pose(rng)
+    q = rng.uniform(PANDA.lower, PANDA.upper) * 0.8
+    axis, (phi, psi, d) = _true_member(T, q, int(rng.integers(0, 7)))
+    member = one_axis_poses(*axis, np.array([phi]), np.array([psi]), np.array([d]))
+    assert member.shape == (1, 4, 4)
+    np.testing.assert_allclose(member[0], T, atol=1e-9)
+
+
+def test_every_member_puts_the_joints_axis_on_the_cameras_line():
+    rng = np.random.default_rng(3)
+    T = sample_camera_pose(rng)
+    (a_b, d_b, a_c, reference), _ = _true_member(T, np.zeros(7), 3)
+    members = one_axis_poses(a_b, d_b, a_c, reference, np.radians([0.0, 100.0, 250.0]), np.radians([-30.0, 5.0]),
+                             np.array([0.5, 2.0]))
+    assert members.shape == (12, 4, 4)
+    normal = np.cross(reference, a_c)
+    for k, M in enumerate(members):
+        np.testing.assert_allclose(M[:3, :3] @ a_b, a_c, atol=1e-12)
+        np.testing.assert_allclose(M[:3, :3] @ M[:3, :3].T, np.eye(3), atol=1e-12)
+        joint = M[:3, :3] @ d_b + M[:3, 3]
+        assert abs(joint @ normal) < 1e-12  # in the axis's plane through the camera centre
+        assert np.linalg.norm(joint) == pytest.approx([0.5, 2.0][k % 2])  # distance-minor order
+
+
+def test_the_bearings_hold_the_truths_and_look_into_the_image():
+    rng = np.random.default_rng(5)
+    T = sample_camera_pose(rng)
+    (a_b, d_b, a_c, reference), (_, psi, _) = _true_member(T, np.zeros(7), 1)
+    step = np.radians(4.0)
+    bearings = visible_bearings(a_c, reference, K, step, 0.5)
+    assert bearings.size > 3 and np.min(np.abs(bearings - psi)) <= step / 2  # the joint is in view
+    assert np.all(np.diff(bearings) > 0)
+    # a plane through the camera centre that holds no ray in front of the camera
+    assert visible_bearings(np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), K, step, 0.5).size == 0
+    with pytest.raises(InvalidInputError, match="reference ray lies along the axis"):
+        visible_bearings(a_c, a_c, K, step, 0.5)
+
+
+def _track_set(T, rng, noise_px=0.0, motions=4):
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=noise_px, outlier_fraction=0.0), rng)
+    observed = []
+    for _ in range(motions):
+        obs = scene.random_motion(rng).observation
+        axis, point = PANDA.axis_and_point(obs.q_start, obs.joint)
+        observed.append((axis, point, [(t.pixels, t.delta) for t in obs.tracks]))
+    # normalized coordinates of the distortion-free camera
+    motions_uv = [(a, p, [((px - K.K[:2, 2]) / np.diag(K.K)[:2], d) for px, d in tracks]) for a, p, tracks in observed]
+    return build_track_set(motions_uv, K.focal)
+
+
+def test_the_linear_track_score_is_zero_at_the_truth_and_grows_away_from_it():
+    rng = np.random.default_rng(11)
+    T = sample_camera_pose(rng)
+    tracks = _track_set(T, rng)
+    assert linear_track_score(tracks, T, 3.0) < 1e-12
+    near = linear_track_score(tracks, perturb(T, np.array([2e-3, 0, 0, 0, 5e-3, 0])), 3.0)
+    far = linear_track_score(tracks, perturb(T, np.array([0.1, -0.05, 0.05, 0.1, 0.0, 0.2])), 3.0)
+    assert 0.01 < near < far <= 9.0
+    # the robot 10 m behind the camera: nearly every observation costs the cap
+    behind = T.copy()
+    behind[2, 3] -= 10.0
+    assert 7.0 < linear_track_score(tracks, behind, 3.0) <= 9.0
+
+
+def test_the_search_settings_are_checked():
+    OneAxisSearch()
+    for bad in ({"turn_step_deg": 0.0}, {"distances": (2.0, 1.0)}, {"fine_distance": 1.0},
+                {"outline_rounds": ()}, {"outline_rounds": ((12.0, 2.0, 1.2, 12.0),)}):
+        with pytest.raises(InvalidInputError):
+            OneAxisSearch(**bad)
+
+
+def test_pose_errors_of_the_truths_member_are_nil():  # the family at the truth's numbers is the truth itself
+    rng = np.random.default_rng(2)
+    T = sample_camera_pose(rng)
+    axis, (phi, psi, d) = _true_member(T, np.full(7, 0.2), 5)
+    grid = one_axis_poses(*axis, phi + np.radians([-10.0, 0.0, 10.0]), np.array([psi]), np.array([d]))
+    errors = [pose_errors(M, T) for M in grid]
+    assert errors[1][0] < 1e-9 and errors[1][1] < 1e-9
+    assert errors[0][0] == pytest.approx(np.radians(10.0)) and errors[2][0] == pytest.approx(np.radians(10.0))
