@@ -33,8 +33,8 @@ from solver.calibration import AxisCorrespondence, family_offsets, pose_family
 from solver.camera import pixels_from_camera_points
 from solver.errors import InsufficientMotionsError, OutlineMismatchError
 from solver.frames import perturb
-from solver.outline_fusion import OutlineAdjustment, OutlineFusionConfig, OutlineImage
 from solver.one_axis import OneAxisSearch
+from solver.outline_fusion import OutlineAdjustment, OutlineFusionConfig, OutlineImage
 from solver.outlines import ImageEdges
 from solver.pipeline import CONICS_NOT_RIGID, CONICS_NOT_RUN, FOCAL_SCALE_TOLERANCE
 from solver.rigid_axis import RigidAxisConfig
