@@ -402,3 +402,21 @@ def test_a_free_line_that_misses_the_robot_or_bad_input_is_refused(edges):
         _adjustment(edges).fuse(T_TRUE, _free_along(RAY), free_direction=np.array([np.nan, 0, 1]))
     with pytest.raises(InvalidInputError, match="two finite offsets"):
         _adjustment(edges).search_along(T_TRUE, RAY, np.array([0.1]))
+
+
+def test_capped_scores_rank_the_true_pose_first_with_every_point_or_every_other(edges):
+    """Contours rendered 8 mm off; scored at poses around the truth, the truth scores lowest whether every contour
+    point counts or every other one; a point's score never exceeds the cap squared."""
+    adjustment = _adjustment(edges)
+    offsets = [np.zeros(6), np.array([0, 0, 0, 4e-3, 0, 0]), np.array([0, 0, 0, 0, 0, 4e-2]),
+               np.array([5e-3, 0, 0, 0, 0, 0]), np.array([0, 0, 0, -3e-3, 3e-3, 0])]
+    poses = np.array([perturb(T_TRUE, xi) for xi in offsets])
+    for stride in (1, 2):
+        scores = adjustment.capped_scores(perturb(T_TRUE, START), poses, 6.0, stride)
+        assert scores.shape == (5,) and int(np.argmin(scores)) == 0 and np.all(scores <= 36.0)
+    with pytest.raises(InvalidInputError):
+        adjustment.capped_scores(T_TRUE, poses, 0.0)
+    with pytest.raises(InvalidInputError):
+        adjustment.capped_scores(T_TRUE, poses, 6.0, 0)
+    with pytest.raises(InsufficientMotionsError):
+        OutlineAdjustment(_renderer, CAMERA, UNLIMITED).capped_scores(T_TRUE, poses, 6.0)
