@@ -489,6 +489,7 @@ class Calibrator:
         self._since_batch = 0  # increments since every motion was last solved
         self._from_family = False  # the refined pose descends from a family start no linear start has beaten
         self._held_updates = 0  # updates in a row whose outlines held the pose against the tracks' (_hold_outlines)
+        self._one_axis_tries: dict[int, int] = {}  # per motion, one-axis searches from its axis (_one_axis_rescue)
         self.relinearized = 0  # updates that solved every motion (for benchmarks)
         self.report_seconds = 0.0  # s spent on the conic front end for its report alone (``conics_always``)
         self.state = CalibrationState(None, "none", None, None, None, None, False, 0, 0, None,
@@ -807,7 +808,8 @@ class Calibrator:
     def _one_axis_rescue(self, live: list[int], with_axis: list[int]) -> tuple[OutlineFusion | None, str]:
         """The outlines' rescue from the family of poses one motion's axis allows (``CalibratorConfig.one_axis``).
 
-        The motion whose axis the most tracks follow; its family searched with a subsample of every live motion's
+        The motion whose axis the most tracks follow, of those searched fewer than ``OneAxisSearch.max_tries`` times;
+        its family searched with a subsample of every live motion's
         tracks and then the outlines (``search_one_axis``); the outlines adjusted alone from the best member
         (``_outlines_alone``: the axis's direction is free again), taken on the rescue's tests (the outlines' residual
         scale, the 1-sigma bounds).
@@ -817,7 +819,12 @@ class Calibrator:
         """
         assert self.outlines is not None and self.config.one_axis is not None
         prefix = "no start from one motion's axis"
-        k = max(with_axis, key=lambda j: int(np.sum(self._motions[j].geometry.track_inliers)))
+        most = self.config.one_axis.max_tries
+        left = [j for j in with_axis if self._one_axis_tries.get(j, 0) < most]
+        if not left:
+            return None, f"{prefix}: searched {most} times from each axis"
+        k = max(left, key=lambda j: int(np.sum(self._motions[j].geometry.track_inliers)))
+        self._one_axis_tries[k] = self._one_axis_tries.get(k, 0) + 1
         m = self._motions[k]
         try:
             T, _ = search_one_axis(self._screen_track_set(live), m.axis_base, m.point_base, m.geometry.axis_cam,

@@ -916,6 +916,31 @@ def test_one_axis_searched_with_the_tracks_and_the_outlines_gives_a_first_pose(m
         assert s.T_camera_base is None and "1 motion(s) with an axis" in s.message
 
 
+def test_one_axis_is_searched_a_few_times_only(monkeypatch):
+    """A search that finds nothing (made to, here) is tried from the same axis at most ``max_tries`` updates: the
+    three from motion 3, when the outlines have three motions' images; then the message says so."""
+    _stage_one_for(monkeypatch, 1)
+    calls = []
+
+    def nothing(*args, **kwargs):
+        calls.append(len(args[0].pivot))
+        raise InsufficientMotionsError("no member of the one-axis family sees the tracks or the outlines")
+
+    monkeypatch.setattr(pipeline, "search_one_axis", nothing)
+    rng = np.random.default_rng(4)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, tracks_per_motion=20), rng)
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(rigid_axis=None), contours=_sphere_contours)
+    notes = []
+    for _ in range(6):
+        motion = scene.random_motion(rng)
+        cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
+        notes.append(cal.state.outline_note)
+    assert len(calls) == 3 and cal.state.T_camera_base is None
+    assert all("no member of the one-axis family" in note for note in notes[2:5])
+    assert notes[5] == "no start from one motion's axis: searched 3 times from each axis"
+
+
 def test_a_rescue_whose_outlines_fit_loosely_gives_no_pose(monkeypatch):
     """However many motions, a rescued pose needs outlines that fit their edges (residual scale at most
     ``max_early_sigma_px``): the fusion is made to report 3 px, and the rescue says so instead of a pose."""
