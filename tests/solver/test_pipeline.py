@@ -726,10 +726,11 @@ def test_the_outlines_join_the_tracks_pose():
     assert s.seconds["outlines"] > 0
 
 
-def _biased_tracks_update(sigmas, config=None, biased=1):
+def _biased_tracks_update(sigmas, config=None, biased=1, placed=None):
     """An outline episode of 8 motions, then ``biased`` more whose tracks' pose is moved ``sigmas`` of its 1-sigma
     along the camera's x (a narrow covariance where the pose went: the tracks' on as-shipped castings). (calibrator,
-    T_true, the tracks' pose of the last update, the state after the 8th)."""
+    T_true, the tracks' pose of the last update, the state after the 8th). ``placed``: whether the chain is taken
+    for one the outlines placed alone (``Calibrator._outlines_placed``) from the 8th on."""
     rng = np.random.default_rng(5)
     T = sample_camera_pose(rng)
     scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=30), rng)
@@ -739,6 +740,8 @@ def _biased_tracks_update(sigmas, config=None, biased=1):
         cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
     before = cal.state
     assert before.outline is not None
+    if placed is not None:
+        cal._outlines_placed = placed
     biased_poses: list[np.ndarray] = []
     weak = cal._without_weak_motions
 
@@ -779,6 +782,21 @@ def test_outlines_hold_the_pose_for_a_few_updates_in_a_row_only():
     cal, _, tracks_pose, _ = _biased_tracks_update(10.0, biased=HOLD_MAX_UPDATES + 1)
     assert cal.state.outline is None and cal.state.outline_note.startswith("OutlineDisagreementError")
     np.testing.assert_array_equal(cal.state.T_camera_base, tracks_pose)
+
+
+@pytest.mark.parametrize("sigmas", [10.0, 1000.0])
+def test_outlines_hold_a_pose_they_placed_alone_past_the_limit(sigmas):
+    """In a chain the outlines began alone (a rescue), tracks' poses that disagree with them beyond the hold's limit
+    (more updates, or too far) leave the outlines alone from the last pose: that pose, near the truth, never
+    converged. (In a chain the tracks began, the tracks' pose as before: the test above.)"""
+    from solver.pipeline import HOLD_MAX_UPDATES
+
+    cal, T, tracks_pose, _ = _biased_tracks_update(sigmas, biased=HOLD_MAX_UPDATES + 2, placed=True)
+    s = cal.state
+    assert s.outline is not None and s.outline.prior_scale == 1.0 and s.outline_note == "" and not s.converged
+    np.testing.assert_array_equal(s.T_camera_base, s.outline.T_camera_base)
+    rot, trans = pose_errors(s.T_camera_base, T)
+    assert rot < NOISY_ROT and trans < NOISY_TRANS and cal._outlines_placed
 
 
 def test_outlines_do_not_hold_a_pose_the_tracks_left_by_too_far():
