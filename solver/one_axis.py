@@ -49,8 +49,8 @@ class OneAxisSearch:
             the line weakest: seen, an as-shipped iiwa's best fine member 1.96 m where the truth was 1.34 m) ...
         outline_stride: ... and scored with every outline_stride-th contour point.
         max_tries: a calibrator searches from one motion's axis at most this many updates (each brings more
-            images; seen: as-shipped iiwas found at the second and third try); a search costs 15-35 s of CPU with
-            15 images at 1080p.
+            images; seen: as-shipped iiwas found at the second and third try) ...
+        max_searches: ... and at most this many in all (a search costs 15-35 s of CPU with 15 images at 1080p).
         track_cap_px: the tracks' residuals are capped at this, px.
         image_margin: bearings whose ray projects within this fraction of the image's size outside it are kept.
     """
@@ -64,6 +64,7 @@ class OneAxisSearch:
     outline_rounds: tuple[tuple[float, float, float, float], ...] = ((12.0, 4.0, 0.35, 12.0), (3.0, 1.0, 0.08, 6.0))
     outline_stride: int = 2
     max_tries: int = 3
+    max_searches: int = 6
     track_cap_px: float = 3.0
     image_margin: float = 0.5
 
@@ -72,7 +73,7 @@ class OneAxisSearch:
         if not (0 < self.turn_step_deg <= 90 and 0 < self.bearing_step_deg <= 45 and 0 < lo < hi
                 and self.distance_samples >= 2 and self.fine_turn_deg > 0 and 0 < self.fine_distance < 1
                 and self.track_cap_px > 0 and self.image_margin >= 0 and self.outline_stride >= 1
-                and self.max_tries >= 1 and self.outline_rounds
+                and self.max_tries >= 1 and self.max_searches >= 1 and self.outline_rounds
                 and all(len(r) == 4 and min(r) > 0 and r[2] < 1 for r in self.outline_rounds)):
             raise InvalidInputError("OneAxisSearch: steps, distances, caps and rounds must be positive (fractions < 1)")
 

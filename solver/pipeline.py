@@ -166,8 +166,9 @@ class CalibratorConfig:
             that makes the two consistent (``Calibrator._hold_outlines``) and report that pose when it is the last
             update's (at most ``HOLD_MAX_UPDATES`` updates in a row); such an update never declares convergence.
             False: the tracks' pose alone, as before.
-        one_axis: when there is no pose yet and nothing for the outlines' rescue to start from (no linear pose, no
-            two non-parallel axes) but a motion has an axis, the family of poses that axis allows is searched with
+        one_axis: when the tracks give no pose, no rescued pose holds, and the outlines' rescue from the linear pose
+            or the pose family fails or has none to start from, but a motion has an axis, the family of poses that
+            axis allows is searched with
             every motion's tracks and then the outlines (``solver.one_axis``), and the outlines are adjusted from the
             best member; the result is taken on the rescue's own tests (``Calibrator._one_axis_rescue``). None: off.
         blas_threads: BLAS threads while the calibrator works (``add_motion``, ``update``), restored after; None:
@@ -798,8 +799,11 @@ class Calibrator:
             if fused is not None:
                 return fused, ""
             why = f"{why}; {why_alone}" if why else why_alone
-        if not starts and with_axis and cfg.one_axis is not None:
-            return self._one_axis_rescue(live, with_axis)
+        if rescued is None and with_axis and cfg.one_axis is not None:
+            fused, why_one = self._one_axis_rescue(live, with_axis)
+            if fused is not None:
+                return fused, ""
+            why = f"{why}; {why_one}" if why else why_one
         return None, why
 
     def _outlines_alone(self, T: FloatArray, prefix: str) -> tuple[OutlineFusion | None, str]:
@@ -819,7 +823,8 @@ class Calibrator:
     def _one_axis_rescue(self, live: list[int], with_axis: list[int]) -> tuple[OutlineFusion | None, str]:
         """The outlines' rescue from the family of poses one motion's axis allows (``CalibratorConfig.one_axis``).
 
-        The motion whose axis the most tracks follow, of those searched fewer than ``OneAxisSearch.max_tries`` times;
+        The motion whose axis the most tracks follow, of those searched fewer than ``OneAxisSearch.max_tries`` times
+        (and ``max_searches`` in all);
         its family searched with a subsample of every live motion's
         tracks and then the outlines (``search_one_axis``); the outlines adjusted alone from the best member
         (``_outlines_alone``: the axis's direction is free again), taken on the rescue's tests (the outlines' residual
@@ -830,10 +835,10 @@ class Calibrator:
         """
         assert self.outlines is not None and self.config.one_axis is not None
         prefix = "no start from one motion's axis"
-        most = self.config.one_axis.max_tries
+        most, every = self.config.one_axis.max_tries, self.config.one_axis.max_searches
         left = [j for j in with_axis if self._one_axis_tries.get(j, 0) < most]
-        if not left:
-            return None, f"{prefix}: searched {most} times from each axis"
+        if not left or sum(self._one_axis_tries.values()) >= every:
+            return None, f"{prefix}: searched {most} times from each axis or {every} in all"
         k = max(left, key=lambda j: int(np.sum(self._motions[j].geometry.track_inliers)))
         self._one_axis_tries[k] = self._one_axis_tries.get(k, 0) + 1
         m = self._motions[k]

@@ -101,7 +101,7 @@ def test_the_search_settings_are_checked():
     OneAxisSearch()
     for bad in ({"turn_step_deg": 0.0}, {"distances": (2.0, 1.0)}, {"fine_distance": 1.0},
                 {"outline_rounds": ()}, {"outline_rounds": ((12.0, 2.0, 1.2, 12.0),)}, {"max_tries": 0},
-                {"outline_stride": 0}):
+                {"max_searches": 0}, {"outline_stride": 0}):
         with pytest.raises(InvalidInputError):
             OneAxisSearch(**bad)
 
