@@ -168,9 +168,9 @@ class CalibratorConfig:
             False: the tracks' pose alone, as before.
         one_axis: when the tracks give no pose, no rescued pose holds, and the outlines' rescue from the linear pose
             or the pose family fails or has none to start from, but a motion has an axis, the family of poses that
-            axis allows is searched with
-            every motion's tracks and then the outlines (``solver.one_axis``), and the outlines are adjusted from the
-            best member; the result is taken on the rescue's own tests (``Calibrator._one_axis_rescue``). None: off.
+            axis allows is searched with every motion's tracks and then the outlines (``solver.one_axis``), and the
+            outlines are adjusted from the best member; the result is taken on the rescue's own tests
+            (``Calibrator._one_axis_rescue``). None: off.
         blas_threads: BLAS threads while the calibrator works (``add_motion``, ``update``), restored after; None:
             leave BLAS as it is (``solver.threads``, where the measurement is).
     """
@@ -753,7 +753,9 @@ class Calibrator:
         pose for the next, which may otherwise start on another branch: seen, a realistic 720p xArm 6 rescued
         0.42 mm off at motion 5 and 1.19 m off, from a start 1 rad off, at motion 6), else or then from the linear
         pose, or else a member of the motions' pose family. Measured on realistic Panda episodes whose first motions
-        turned joints 1-3 only: ``docs/realistic-imaging.md``.
+        turned joints 1-3 only: ``docs/realistic-imaging.md``. When those fail: the outlines alone from the last
+        update's pose if the outlines fused or rescued it (``_outlines_alone``), then, with no rescued pose, the
+        family one motion's axis allows (``_one_axis_rescue``).
 
         ``tracks``: every live motion's track set if this update built one, else None (built here when there is a
         start to try).
@@ -789,13 +791,13 @@ class Calibrator:
             fused, why = self._rescue_near(rescued, tracks)
             if fused is not None:
                 return fused, ""
-        held = self.state.T_camera_base if self.state.outline is not None else None
-        if held is not None:
+        outlined = self.state.T_camera_base if self.state.outline is not None else None
+        if outlined is not None:
             # The tracks could neither fix the pose nor agree with the outlines near the last pose, which the outlines
             # fused or rescued (the tracks' pose wide and biased by sliding tracks: seen, as-shipped iiwas rescued
             # 1.31 and 0.45 mm off at motion 4, at 5 the tracks' pose 18 and 37 sigma from the outlines'; an
             # as-shipped xArm 6 fused 0.41 mm off at 4, at 5 the tracks' 1-sigma 73 mm): the outlines alone, from it.
-            fused, why_alone = self._outlines_alone(held, "the outlines alone could not hold the last pose")
+            fused, why_alone = self._outlines_alone(outlined, "the outlines alone could not hold the last pose")
             if fused is not None:
                 return fused, ""
             why = f"{why}; {why_alone}" if why else why_alone
@@ -824,9 +826,8 @@ class Calibrator:
         """The outlines' rescue from the family of poses one motion's axis allows (``CalibratorConfig.one_axis``).
 
         The motion whose axis the most tracks follow, of those searched fewer than ``OneAxisSearch.max_tries`` times
-        (and ``max_searches`` in all);
-        its family searched with a subsample of every live motion's
-        tracks and then the outlines (``search_one_axis``); the outlines adjusted alone from the best member
+        (and while fewer than ``max_searches`` searches ran in all); its family searched with a subsample of every live
+        motion's tracks and then the outlines (``search_one_axis``); the outlines adjusted alone from the best member
         (``_outlines_alone``: the axis's direction is free again), taken on the rescue's tests (the outlines' residual
         scale, the 1-sigma bounds).
 
