@@ -30,7 +30,7 @@ from solver.observations import CameraIntrinsics
 from solver.outline_fusion import OutlineAdjustment
 from solver.refinement import TrackSet, linear_track_score
 
-__all__ = ["OneAxisSearch", "axis_frame", "one_axis_poses", "search_one_axis", "visible_bearings"]
+__all__ = ["OneAxisSearch", "axis_frame", "axis_plane", "one_axis_poses", "search_one_axis", "visible_bearings"]
 
 
 @dataclass(frozen=True)
@@ -82,18 +82,30 @@ def axis_frame(axis_base: FloatArray, axis_cam: FloatArray, reference_cam: Float
                ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """R0 (3, 3), the least rotation taking a_b (3,) onto A^c (3,), and the unit A^c and f (3,) of the family.
 
-    f: the unit direction, perpendicular to A^c, of the plane through the camera centre and the axis, towards the
-    axis's line (from the reference ray (3,), a ray towards a point of it; either sign: taken in front of the camera).
+    f: ``axis_plane``'s, from the reference ray (3,).
     """
     a_b = np.asarray(axis_base, dtype=np.float64) / np.linalg.norm(axis_base)
+    a_c, f = axis_plane(axis_cam, reference_cam)
+    R0 = Rotation.align_vectors(a_c[None], a_b[None])[0].as_matrix()
+    return R0, a_c, f
+
+
+def axis_plane(axis_cam: FloatArray, reference_cam: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The unit A^c (3,) and f (3,): the plane through the camera centre and the axis, f perpendicular to A^c.
+
+    f points towards the axis's line (from the reference ray (3,), a ray towards a point of it; either sign: taken
+    in front of the camera).
+
+    Raises:
+        InvalidInputError: the reference ray lies along the axis.
+    """
     a_c = np.asarray(axis_cam, dtype=np.float64) / np.linalg.norm(axis_cam)
     ref = np.asarray(reference_cam, dtype=np.float64)
     ref = ref if ref[2] >= 0 else -ref  # the line through the camera centre, towards the side in front of it
     f = ref - (ref @ a_c) * a_c
     if np.linalg.norm(f) < 1e-9:
         raise InvalidInputError("the reference ray lies along the axis: the axis's plane is undefined")
-    R0 = Rotation.align_vectors(a_c[None], a_b[None])[0].as_matrix()
-    return R0, a_c, f / np.linalg.norm(f)
+    return a_c, f / np.linalg.norm(f)
 
 
 def one_axis_poses(axis_base: FloatArray, point_base: FloatArray, axis_cam: FloatArray, reference_cam: FloatArray,
@@ -123,7 +135,7 @@ def visible_bearings(axis_cam: FloatArray, reference_cam: FloatArray, intrinsics
     Those whose ray is in front of the camera and projects into the image grown by ``margin`` of its width and height
     on every side.
     """
-    _, a_c, f = axis_frame(axis_cam, axis_cam, reference_cam)
+    a_c, f = axis_plane(axis_cam, reference_cam)
     psi = np.arange(-np.pi / 2 + step / 2, np.pi / 2, step)
     rays = np.cos(psi)[:, None] * f + np.sin(psi)[:, None] * a_c
     front = rays[:, 2] > 0.05

@@ -438,10 +438,8 @@ class OutlineAdjustment:
         best_T = T0
         step = float("nan")
         for round_ in range(cfg.search_rounds):
-            for cached in self._images:  # the contours from the best pose so far
-                cached.render(self.renderer, best_T, self.intrinsics)
             shifted = [_translated(T0, s * u) for s in offsets]
-            scores = np.array([self._capped_score(candidate, cap) for candidate in shifted])
+            scores = self.capped_scores(best_T, np.array(shifted), cap)  # the contours from the best pose so far
             if not np.isfinite(scores).any():
                 raise InsufficientMotionsError("no pose along the free direction puts the robot's contour in front "
                                                "of the camera")

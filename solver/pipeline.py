@@ -1218,7 +1218,6 @@ class Calibrator:
             (the held fusion, None), or (None, the disagreement, with why it was not held).
         """
         assert self.outlines is not None and self.state.T_camera_base is not None
-        last_T, last_cov = self.state.T_camera_base, self.state.covariance
         scale = consistent_prior_scale(failure, HOLD_TARGET_CHI2, HOLD_MAX_SCALE)
         if scale is None:
             return None, OutlineDisagreementError(
@@ -1226,7 +1225,7 @@ class Calibrator:
         held, why = self._fuse_outlines(refined, scale)
         if held is None:
             return None, OutlineDisagreementError(f"{failure}; not held: {why}", failure.chi2)
-        moved = _transform_chi2(held.T_camera_base, last_T, last_cov + held.covariance)
+        moved = self._moved_from_last(held)
         if moved > FAMILY_SAME_CHI2:
             return None, OutlineDisagreementError(
                 f"{failure}; not held: with the tracks' covariance {scale:.1f}x the outlines' pose moved "
@@ -1247,16 +1246,22 @@ class Calibrator:
         Returns:
             (the fusion, "") or (None, why not).
         """
-        assert self.state.T_camera_base is not None and self.state.covariance is not None
-        last_T, last_cov = self.state.T_camera_base, self.state.covariance
-        fused, why = self._outlines_alone(last_T, "the outlines alone could not hold the pose they placed")
+        assert self.state.T_camera_base is not None
+        fused, why = self._outlines_alone(self.state.T_camera_base,
+                                          "the outlines alone could not hold the pose they placed")
         if fused is None:
             return None, why
-        moved = _transform_chi2(fused.T_camera_base, last_T, last_cov + fused.covariance)
+        moved = self._moved_from_last(fused)
         if moved > FAMILY_SAME_CHI2:
             return None, (f"the outlines alone moved {np.sqrt(moved):.1f} sigma from the pose they placed: "
                           "not held")
         return fused, ""
+
+    def _moved_from_last(self, fusion: OutlineFusion) -> float:
+        """The chi-square of ``fusion``'s pose from the last update's, under the sum of their covariances."""
+        assert self.state.T_camera_base is not None and self.state.covariance is not None
+        return _transform_chi2(fusion.T_camera_base, self.state.T_camera_base,
+                               self.state.covariance + fusion.covariance)
 
     def _fuse_outlines(self, refined: RefinementResult, prior_scale: float = 1.0
                        ) -> tuple[OutlineFusion | None, Exception | None]:

@@ -260,6 +260,12 @@ def triangulate_tracks(tracks: TrackSet, T_camera_base: FloatArray) -> tuple[Flo
         points (T, 3) float64, m, and ok (T,) bool: False where the system is singular or the point
         falls behind the camera.
     """
+    points, ok, _ = _triangulated(tracks, T_camera_base)
+    return points, ok
+
+
+def _triangulated(tracks: TrackSet, T_camera_base: FloatArray) -> tuple[FloatArray, NDArray[np.bool_], FloatArray]:
+    """``triangulate_tracks``' points (T, 3) and ok (T,), and every observation's camera point (P, 3) of them."""
     R, t = T_camera_base[:3, :3], T_camera_base[:3, 3]
     M = np.einsum("ij,pjk->pik", R, tracks.rot)  # (P, 3, 3)
     c = tracks.pivot[tracks.track] @ R.T + t  # (P, 3)
@@ -276,11 +282,11 @@ def triangulate_tracks(tracks: TrackSet, T_camera_base: FloatArray) -> tuple[Flo
     AtA[~ok] = np.eye(3)
     y = np.linalg.solve(AtA, Atb[..., None])[..., 0]
     points = y + tracks.pivot
-    depth = np.einsum("pij,pj->pi", M, y[tracks.track]) [:, 2] + c[:, 2]
-    front = np.bincount(tracks.track, weights=(depth > 0).astype(float), minlength=tracks.n_tracks)
+    camera = np.einsum("pij,pj->pi", M, y[tracks.track]) + c
+    front = np.bincount(tracks.track, weights=(camera[:, 2] > 0).astype(float), minlength=tracks.n_tracks)
     counts = np.bincount(tracks.track, minlength=tracks.n_tracks)
     ok &= front == counts
-    return points, ok
+    return points, ok, camera
 
 
 def track_camera_points(tracks: TrackSet, T_camera_base: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -1510,9 +1516,8 @@ def linear_track_score(tracks: TrackSet, T_camera_base: FloatArray, cap_px: floa
     of a track that cannot be triangulated or falls behind the camera (as ``screen_start``, with no pass of the
     adjustment: thousands of poses can be scored, e.g. ``solver.one_axis.search_one_axis``).
     """
-    points, ok = triangulate_tracks(tracks, T_camera_base)
-    pc, _ = track_camera_points(tracks, T_camera_base, points - tracks.pivot)
-    good = ok[tracks.track] & (pc[:, 2] > 0)
+    _, ok, pc = _triangulated(tracks, T_camera_base)
+    good = ok[tracks.track]  # (an ok track's every observation is in front of the camera)
     pc[~good, 2] = 1.0  # any depth: these observations cost the cap
     r2 = np.minimum(np.sum(track_pixel_residuals(tracks, pc) ** 2, axis=1) / 2, cap_px**2)
     return float(np.mean(np.where(good, r2, cap_px**2)))

@@ -5,6 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from solver import PANDA, SyntheticConfig, SyntheticScene, d415_intrinsics, sample_camera_pose
+from solver.camera import normalized_from_pixels
 from solver.errors import InvalidInputError
 from solver.frames import perturb, pose_errors
 from solver.one_axis import OneAxisSearch, axis_frame, one_axis_poses, visible_bearings
@@ -78,8 +79,7 @@ def _track_set(T, rng, noise_px=0.0, motions=4):
         obs = scene.random_motion(rng).observation
         axis, point = PANDA.axis_and_point(obs.q_start, obs.joint)
         observed.append((axis, point, [(t.pixels, t.delta) for t in obs.tracks]))
-    # normalized coordinates of the distortion-free camera
-    motions_uv = [(a, p, [((px - K.K[:2, 2]) / np.diag(K.K)[:2], d) for px, d in tracks]) for a, p, tracks in observed]
+    motions_uv = [(a, p, [(normalized_from_pixels(px, K), d) for px, d in tracks]) for a, p, tracks in observed]
     return build_track_set(motions_uv, K.focal)
 
 
