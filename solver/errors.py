@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from solver.rigid_axis import RigidAxisFit
+
 
 class ArcCalibError(Exception):
     """Base class of every error ARC-Calib raises on purpose."""
@@ -23,7 +28,15 @@ class NonRigidTracksError(DegenerateMotionError):
     """Too few of a motion's tracks turn as one rigid body by the known angles, from any start tried.
 
     The rigid front end's verdict, the conic front end's axis among the starts: the tracks support no axis.
+
+    ``fit``: the fit the most tracks followed, too few of them (its inliers, at least ``RigidAxisConfig.min_tracks``,
+    and an axis the tracks fix), or None: not an axis for the linear calibration, a candidate that something else
+    must confirm (``solver.one_axis``'s search, the outlines).
     """
+
+    def __init__(self, message: str, fit: RigidAxisFit | None = None) -> None:
+        super().__init__(message)
+        self.fit = fit
 
 
 class InsufficientMotionsError(ArcCalibError):

@@ -319,6 +319,7 @@ class _Motion:
     # (uv normalized, delta rad, joint velocity rad/s or None) subsampled, moving only
     tracks: list[tuple[FloatArray, FloatArray, FloatArray | None]]
     points: FloatArray | None = None  # (len(tracks), 3) last refined points, NaN where unknown
+    weak: MotionGeometry | None = None  # a rigid fit too few tracks follow: for the one-axis search alone
 
 
 #: ``MotionReport.conics`` of a motion whose conics did not run: with ``CalibratorConfig.rigid_always`` they
@@ -540,8 +541,9 @@ class Calibrator:
                     found.append(self._conic_front_end(obs, report))
                 return found[0]
 
+            weak: MotionGeometry | None = None
             if self.config.rigid_axis is not None and self.config.rigid_always:
-                moving, geometry = self._rigid_front_end(obs, moving, conics, report, axis, point)
+                moving, geometry, weak = self._rigid_front_end(obs, moving, conics, report, axis, point)
                 if not found and self.config.conics_always:  # for the report only: the rigid axis stays
                     t0 = time.perf_counter()
                     conics()
@@ -551,7 +553,7 @@ class Calibrator:
             else:
                 geometry = conics()
                 if self.config.rigid_axis is not None and geometry is None:
-                    moving, geometry = self._rigid_front_end(obs, moving, conics, report, axis, point)
+                    moving, geometry, weak = self._rigid_front_end(obs, moving, conics, report, axis, point)
             if geometry is not None and report.front_end != "rigid":
                 report.front_end = "conics"
             if geometry is None:
@@ -565,7 +567,7 @@ class Calibrator:
                 idx = np.arange(len(t)) if cap_frames is None else evenly_spaced(len(t), cap_frames)
                 tracks.append((normalized_from_pixels(t.pixels[idx], self.intrinsics), t.delta[idx],
                                None if t.velocity is None else t.velocity[idx]))
-            self._motions.append(_Motion(obs, axis, point, geometry, tracks))
+            self._motions.append(_Motion(obs, axis, point, geometry, tracks, weak=weak))
         if update:
             self._update()
         return report
@@ -801,7 +803,8 @@ class Calibrator:
             if fused is not None:
                 return fused, ""
             why = f"{why}; {why_alone}" if why else why_alone
-        if rescued is None and with_axis and cfg.one_axis is not None:
+        if rescued is None and cfg.one_axis is not None and any(
+                self._motions[k].geometry is not None or self._motions[k].weak is not None for k in live):
             fused, why_one = self._one_axis_rescue(live, with_axis)
             if fused is not None:
                 return fused, ""
@@ -826,10 +829,11 @@ class Calibrator:
         """The outlines' rescue from the family of poses one motion's axis allows (``CalibratorConfig.one_axis``).
 
         The motion whose axis the most tracks follow, of those searched fewer than ``OneAxisSearch.max_tries`` times
-        (and while fewer than ``max_searches`` searches ran in all); its family searched with a subsample of every live
-        motion's tracks and then the outlines (``search_one_axis``); the outlines adjusted alone from the best member
-        (``_outlines_alone``: the axis's direction is free again), taken on the rescue's tests (the outlines' residual
-        scale, the 1-sigma bounds).
+        (and while fewer than ``max_searches`` searches ran in all), else of the motions with a weak axis
+        (``OneAxisSearch.weak_share``) the one the most tracks follow; its family searched with a subsample of every
+        live motion's tracks and then the outlines (``search_one_axis``); the outlines adjusted alone from the best
+        member (``_outlines_alone``: the axis's direction is free again), taken on the rescue's tests (the outlines'
+        residual scale, the 1-sigma bounds).
 
         Returns:
             (the fusion, "") or (None, why not).
@@ -838,17 +842,24 @@ class Calibrator:
         prefix = "no start from one motion's axis"
         most, every = self.config.one_axis.max_tries, self.config.one_axis.max_searches
         left = [j for j in with_axis if self._one_axis_tries.get(j, 0) < most]
-        if not left or sum(self._one_axis_tries.values()) >= every:
+        weak = [j for j in live if self._motions[j].weak is not None and self._one_axis_tries.get(j, 0) < most]
+        if not left + weak or sum(self._one_axis_tries.values()) >= every:
             return None, f"{prefix}: searched {most} times from each axis or {every} in all"
-        k = max(left, key=lambda j: int(np.sum(self._motions[j].geometry.track_inliers)))
+        k = max(left or weak, key=lambda j: int(np.sum((self._motions[j].geometry or self._motions[j].weak)
+                                                       .track_inliers)))
         self._one_axis_tries[k] = self._one_axis_tries.get(k, 0) + 1
         m = self._motions[k]
+        geometry = m.geometry or m.weak
+        assert geometry is not None
+        which = f"motion {k + 1}" + ("" if m.geometry is not None else
+                                     f", a weak axis: {int(np.sum(geometry.track_inliers))} of "
+                                     f"{len(geometry.track_inliers)} tracks")
         try:
-            T, _ = search_one_axis(self._screen_track_set(live), m.axis_base, m.point_base, m.geometry.axis_cam,
-                                   m.geometry.reference_cam, self.intrinsics, self.outlines, self.config.one_axis)
+            T, _ = search_one_axis(self._screen_track_set(live), m.axis_base, m.point_base, geometry.axis_cam,
+                                   geometry.reference_cam, self.intrinsics, self.outlines, self.config.one_axis)
         except ArcCalibError as exc:
-            return None, f"{prefix} (motion {k + 1}): {type(exc).__name__}: {exc}"
-        return self._outlines_alone(T, f"{prefix} (motion {k + 1})")
+            return None, f"{prefix} ({which}): {type(exc).__name__}: {exc}"
+        return self._outlines_alone(T, f"{prefix} ({which})")
 
     def _rescue_from(self, T: FloatArray, live: list[int], joints: FloatArray, tracks: TrackSet,
                      max_prior_px: float | None = None) -> tuple[OutlineFusion | None, str]:
@@ -1389,8 +1400,9 @@ class Calibrator:
 
     def _rigid_front_end(self, obs: MotionObservation, moving: list[KeypointTrack],
                          conics: Callable[[], MotionGeometry | None], report: MotionReport, axis_base: FloatArray,
-                         point_base: FloatArray) -> tuple[list[KeypointTrack], MotionGeometry | None]:
-        """Run the rigid front end: (the tracks that move rigidly, the motion's geometry).
+                         point_base: FloatArray
+                         ) -> tuple[list[KeypointTrack], MotionGeometry | None, MotionGeometry | None]:
+        """Run the rigid front end: (the tracks that move rigidly, the motion's geometry, a weak axis).
 
         ``conics`` gives the conic front end's geometry (or None), running it when first called: its axis is a
         start of the rigid fit, and the fallback when the fit fails. ``axis_base`` (3,) unit and ``point_base``
@@ -1399,7 +1411,8 @@ class Calibrator:
         needed. Without a fit (too few tracks, no shared frames, an unfixed axis) the tracks and the conics'
         geometry stay as they are and ``report.rigid`` says why; when the fit found that the tracks do not turn
         rigidly (from every start, the conics' axis among them) the conics' axis is not used either
-        (``CONICS_NOT_RIGID``).
+        (``CONICS_NOT_RIGID``), and the best such fit is the weak axis when its share of the tracks reaches
+        ``OneAxisSearch.weak_share`` (else None).
         """
 
         def starts() -> list[tuple[FloatArray, FloatArray]]:
@@ -1417,15 +1430,18 @@ class Calibrator:
             report.rigid = str(exc)
             if conics() is not None:
                 report.conics = CONICS_NOT_RIGID
-            return moving, None
+            search = self.config.one_axis
+            weak = (geometry_from_rigid_fit(exc.fit) if exc.fit is not None and search is not None
+                    and search.weak_share is not None and exc.fit.track_inliers.mean() >= search.weak_share else None)
+            return moving, None, weak
         except DegenerateMotionError as exc:
             report.rigid = str(exc)
-            return moving, conics()
+            return moving, conics(), None
         report.n_inconsistent_tracks = int(np.sum(~fit.track_inliers))
         report.rigid_predicted = fit.from_prediction
         report.front_end = "rigid"
         kept = [t for t, ok in zip(moving, fit.track_inliers, strict=True) if ok]
-        return kept, geometry_from_rigid_fit(fit)
+        return kept, geometry_from_rigid_fit(fit), None
 
     def _correspondence(self, k: int) -> AxisCorrespondence:
         m = self._motions[k]

@@ -854,8 +854,10 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
         The axis, the axis point at unit distance, per-track residuals and inliers.
 
     Raises:
-        DegenerateMotionError: too few tracks, no frame pair shared by enough of them, too few tracks
-            moving rigidly together, or an axis direction the tracks do not fix.
+        DegenerateMotionError: too few tracks, no frame pair shared by enough of them, or an axis direction the
+            tracks do not fix.
+        NonRigidTracksError: too few tracks moving rigidly together (its ``fit``: the best fit, when at least
+            ``min_tracks`` follow it and it fixes the axis).
     """
     config = config or RigidAxisConfig()
     if len(uv) != len(deltas):
@@ -916,10 +918,12 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     threshold = rms_threshold(track_rms, config, noise_px)
     keep = track_rms <= threshold
     n_in, n_need = int(keep.sum()), max(config.min_tracks, int(np.ceil(config.min_inlier_fraction * L)))
+    rms_in = float(np.sqrt(np.mean(track_rms[keep] ** 2))) if n_in else float("inf")
     if n_in < n_need:
+        weak = (RigidAxisFit(a, p, axis_std, track_rms, keep, rms_in, from_prediction)
+                if n_in >= config.min_tracks and axis_std <= config.max_axis_std else None)
         raise NonRigidTracksError(f"rigid front end: only {n_in} of {L} tracks move rigidly together within "
-                                  f"{threshold:.2g} px (need {n_need})")
-    rms_in = float(np.sqrt(np.mean(track_rms[keep] ** 2)))
+                                  f"{threshold:.2g} px (need {n_need})", weak)
     if not axis_std <= config.max_axis_std:
         raise DegenerateMotionError(
             f"rigid front end: the tracks do not fix the axis (1-sigma {axis_std:.3f} rad > {config.max_axis_std})")

@@ -935,6 +935,43 @@ def test_one_axis_searched_with_the_tracks_and_the_outlines_gives_a_first_pose(m
         assert s.T_camera_base is None and "1 motion(s) with an axis" in s.message
 
 
+@pytest.mark.parametrize("weak_share", [0.15, None])
+def test_a_weak_axis_is_searched_when_no_motion_has_an_axis(monkeypatch, weak_share):
+    """No motion gives an axis: the first motion's rigid fit is made to need every track (1 in 10 is an outlier), the
+    others' fail. The fit the most tracks followed (``NonRigidTracksError.fit``) is the weak axis: the one-axis search
+    from it gives a first pose near the truth on the outlines' tests; with ``weak_share`` None there is none."""
+    real = pipeline.rigid_axis_of_motion
+    fits = []
+
+    def first_weak(obs, intrinsics, config, *args, **kwargs):
+        fits.append(len(fits))
+        if len(fits) > 1:
+            raise DegenerateMotionError("stage one switched off by the test")
+        return real(obs, intrinsics, replace(config, min_inlier_fraction=1.0), *args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "rigid_axis_of_motion", first_weak)
+    _stage_one_for(monkeypatch, 0)
+    rng = np.random.default_rng(4)
+    T = sample_camera_pose(rng)
+    scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=30),
+                           rng)
+    cal = Calibrator(K, PANDA.axis_and_point, CalibratorConfig(one_axis=OneAxisSearch(weak_share=weak_share)),
+                     contours=_sphere_contours)
+    for _ in range(3):
+        motion = scene.random_motion(rng)
+        cal.add_motion(motion.observation, outlines=_motion_images(T, motion, rng))
+    s = cal.state
+    assert all(cal.motion_geometry(k) is None for k in range(3)) and "tracks move rigidly" in cal.reports[0].rigid
+    if weak_share is None:
+        assert s.T_camera_base is None and "0 motion(s) with an axis" in s.message
+        return
+    assert s.T_camera_base is not None and s.start == "outlines" and not s.converged, s.message
+    rot, trans = pose_errors(s.T_camera_base, T)
+    assert rot < NOISY_ROT and trans < NOISY_TRANS
+    chi2 = pose_difference(s.T_camera_base, T) @ np.linalg.solve(s.covariance, pose_difference(s.T_camera_base, T))
+    assert chi2 < 22.46  # its covariance holds the truth (chi-square, 6 dof, 0.999)
+
+
 def test_one_axis_is_searched_a_few_times_only(monkeypatch):
     """A search that finds nothing (made to, here) is tried from the same axis at most ``max_tries`` updates: the
     three from motion 3, when the outlines have three motions' images; then the message says so."""

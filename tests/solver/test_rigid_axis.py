@@ -501,6 +501,26 @@ def test_the_relative_poses_are_tried_only_when_no_earlier_fit_is_usable(monkeyp
     assert calls == {"grid": 3, "relative": 2}
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_too_few_rigid_tracks_raise_with_the_fit_they_follow(seed):
+    """12 of 40 tracks turn rigidly and the front end is made to need half: no axis, but the error carries the fit
+    the 12 follow (and a few short sliding tracks that slid too little to tell), near the true axis; when
+    ``min_tracks`` is more than follow it, it carries none."""
+    rng = np.random.default_rng(200 + seed)
+    axis = rng.normal(size=3)
+    point = np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(0.9, 1.4)])
+    obs, axis = _scene(seed, axis, point, n_tracks=12, sliding=28)
+    half = RigidAxisConfig(min_inlier_fraction=0.5)
+    with pytest.raises(NonRigidTracksError, match="tracks move rigidly together") as caught:
+        rigid_axis_of_motion(obs, CAMERA, half)
+    fit = caught.value.fit
+    assert fit is not None and _angle(fit.axis_cam, axis) < np.radians(2.0)
+    assert fit.track_inliers[:12].all() and 12 <= fit.track_inliers.sum() < 20 and fit.rms_px < 1.0
+    with pytest.raises(NonRigidTracksError) as caught:
+        rigid_axis_of_motion(obs, CAMERA, RigidAxisConfig(min_inlier_fraction=0.5, min_tracks=25))
+    assert caught.value.fit is None
+
+
 def test_the_predicted_angle_is_checked():
     with pytest.raises(InvalidInputError, match="predicted_angle"):
         RigidAxisConfig(predicted_angle=0.0)
