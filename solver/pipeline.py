@@ -171,8 +171,9 @@ class CalibratorConfig:
             axis allows is searched with every motion's tracks and then the outlines (``solver.one_axis``), and the
             outlines are adjusted from the best member; the result is taken on the rescue's own tests
             (``Calibrator._one_axis_rescue``). None: off.
-        blas_threads: BLAS threads while the calibrator works (``add_motion``, ``update``), restored after; None:
-            leave BLAS as it is (``solver.threads``, where the measurement is).
+        blas_threads: BLAS threads while the calibrator works (``add_motion``, ``update``, ``focal_check``,
+            ``batch_refinement``), restored after; None: leave BLAS as it is (``solver.threads``, where the
+            measurement is).
     """
 
     motion: MotionConfig = field(default_factory=MotionConfig)
@@ -1321,6 +1322,10 @@ class Calibrator:
         far beyond its 1-sigma while the RMS barely moves (fx 5 % high: 39 mm off, 1-sigma 1.2 mm,
         RMS 0.208 against 0.167 px at the true fx), so this is the test that catches them.
         """
+        with limited_blas(self.config.blas_threads):
+            return self._focal_check(scales)
+
+    def _focal_check(self, scales: Sequence[float]) -> FocalCheck | None:
         if self._refined is None or self.state.stage != "refined":
             return None
         live = [k for k, m in enumerate(self._motions) if m is not None]
@@ -1355,8 +1360,9 @@ class Calibrator:
         if self._refined is None or self.state.stage != "refined":
             return None
         live = [k for k, m in enumerate(self._motions) if m is not None]
-        return refine(self._track_set(live), self._refined.T_camera_base, self.config.refinement,
-                      points_init=self._warm_points(live))
+        with limited_blas(self.config.blas_threads):
+            return refine(self._track_set(live), self._refined.T_camera_base, self.config.refinement,
+                          points_init=self._warm_points(live))
 
     def _track_set(self, live: list[int], focal_scale: float = 1.0) -> TrackSet:
         """The bundle adjustment's observations of motions ``live``, for focal lengths scaled by focal_scale.

@@ -174,23 +174,39 @@ def test_same_input_gives_identical_estimates():
 
 
 @pytest.mark.parametrize("blas_threads", [1, None])
-def test_the_calibrator_limits_blas_threads_while_it_works_and_restores_them(blas_threads):
+def test_the_calibrator_limits_blas_threads_while_it_works_and_restores_them(monkeypatch, blas_threads):
+    """In add_motion, and in the adjustments of focal_check and batch_refinement."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
     seen: list[int] = []
 
+    def threads() -> list[int]:
+        return [info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"]
+
     def kinematics(q, joint):  # called inside add_motion: records the BLAS threads there
-        seen.extend(info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas")
+        seen.extend(threads())
         return PANDA.axis_and_point(q, joint)
 
     rng = np.random.default_rng(3)
     scene = SyntheticScene(PANDA, K, sample_camera_pose(rng), SyntheticConfig(tracks_per_motion=15), rng)
     cal = Calibrator(K, kinematics, CalibratorConfig(blas_threads=blas_threads))
     with threadpool_limits(limits=2, user_api="blas"):
-        for _ in range(3):
+        for _ in range(4):
             cal.add_motion(scene.random_motion(rng).observation)
-        after = [info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"]
-    assert seen and set(seen) == ({1} if blas_threads == 1 else {2})
+        after = threads()
+        adjusted: list[int] = []
+        real = pipeline.refine
+
+        def spy(*args, **kwargs):
+            adjusted.extend(threads())
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(pipeline, "refine", spy)
+        assert cal.state.stage == "refined"
+        assert cal.focal_check() is not None and cal.batch_refinement() is not None
+        assert threads() == after
+    want = {1} if blas_threads == 1 else {2}
+    assert seen and set(seen) == want and adjusted and set(adjusted) == want
     assert set(after) == {2}  # restored
 
 
