@@ -2,11 +2,6 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from solver.rigid_axis import RigidAxisFit
-
 
 class ArcCalibError(Exception):
     """Base class of every error ARC-Calib raises on purpose."""
@@ -29,12 +24,13 @@ class NonRigidTracksError(DegenerateMotionError):
 
     The rigid front end's verdict, the conic front end's axis among the starts: the tracks support no axis.
 
-    ``fit``: the fit the most tracks followed, too few of them (its inliers, at least ``RigidAxisConfig.min_tracks``,
-    and an axis the tracks fix), or None: not an axis for the linear calibration, a candidate that something else
-    must confirm (``solver.one_axis``'s search, the outlines).
+    ``fit``: the fit the most tracks followed, too few of them (a ``solver.rigid_axis.RigidAxisFit``: its inliers at
+    least ``RigidAxisConfig.min_tracks``, an axis the tracks fix), or None: not an axis for the linear calibration, a
+    candidate that something else must confirm (``solver.one_axis``'s search, the outlines). Typed loosely: this
+    module imports nothing of the solver's.
     """
 
-    def __init__(self, message: str, fit: RigidAxisFit | None = None) -> None:
+    def __init__(self, message: str, fit: object | None = None) -> None:
         super().__init__(message)
         self.fit = fit
 

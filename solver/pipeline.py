@@ -71,7 +71,7 @@ from solver.refinement import (
     screen_start,
     track_observability,
 )
-from solver.rigid_axis import RigidAxisConfig, geometry_from_rigid_fit, rigid_axis_of_motion
+from solver.rigid_axis import RigidAxisConfig, RigidAxisFit, geometry_from_rigid_fit, rigid_axis_of_motion
 from solver.threads import check_blas_threads, limited_blas
 
 Stage = Literal["none", "linear", "refined"]
@@ -167,10 +167,10 @@ class CalibratorConfig:
             update's (at most ``HOLD_MAX_UPDATES`` updates in a row); such an update never declares convergence.
             False: the tracks' pose alone, as before.
         one_axis: when the tracks give no pose, no rescued pose holds, and the outlines' rescue from the linear pose
-            or the pose family fails or has none to start from, but a motion has an axis, the family of poses that
-            axis allows is searched with every motion's tracks and then the outlines (``solver.one_axis``), and the
-            outlines are adjusted from the best member; the result is taken on the rescue's own tests
-            (``Calibrator._one_axis_rescue``). None: off.
+            or the pose family fails or has none to start from, but a motion has an axis (or a weak one:
+            ``OneAxisSearch.weak_share``), the family of poses that axis allows is searched with every motion's tracks
+            and then the outlines (``solver.one_axis``), and the outlines are adjusted from the best member; the result
+            is taken on the rescue's own tests (``Calibrator._one_axis_rescue``). None: off.
         blas_threads: BLAS threads while the calibrator works (``add_motion``, ``update``, ``focal_check``,
             ``batch_refinement``), restored after; None: leave BLAS as it is (``solver.threads``, where the
             measurement is).
@@ -1436,9 +1436,9 @@ class Calibrator:
             report.rigid = str(exc)
             if conics() is not None:
                 report.conics = CONICS_NOT_RIGID
-            search = self.config.one_axis
-            weak = (geometry_from_rigid_fit(exc.fit) if exc.fit is not None and search is not None
-                    and search.weak_share is not None and exc.fit.track_inliers.mean() >= search.weak_share else None)
+            search, best = self.config.one_axis, exc.fit
+            weak = (geometry_from_rigid_fit(best) if isinstance(best, RigidAxisFit) and search is not None
+                    and search.weak_share is not None and best.track_inliers.mean() >= search.weak_share else None)
             return moving, None, weak
         except DegenerateMotionError as exc:
             report.rigid = str(exc)
