@@ -182,6 +182,12 @@ def _fmt(x: float | None, scale: float = 1.0, digits: str = ".2e") -> str:
     return "inf" if not np.isfinite(x) else format(x * scale, digits)
 
 
+def _finite_mean(values: list[float]) -> float:
+    """The mean of the finite values (per-run IoU means; NaN where a run had none), NaN if none is."""
+    finite = [v for v in values if np.isfinite(v)]
+    return float(np.mean(finite)) if finite else float("nan")
+
+
 def markdown_table(summary: dict[str, dict], iou: dict[str, float], n_motions: int, header: str) -> str:
     """The results as a markdown table (ours and the paper's)."""
     cols = [k for k in CHECKPOINTS]
@@ -195,7 +201,9 @@ def markdown_table(summary: dict[str, dict], iou: dict[str, float], n_motions: i
                 cells += [_fmt(s["rot"][k - 1]), _fmt(s["trans"][k - 1], 1e3, ".2f")]
             else:
                 cells += ["-", "-"]
-        rows.append(f"| {m} (ours, sim) | " + " | ".join(cells) + f" | {_fmt(iou.get(m), digits='.3f')} |")
+        mean_iou = iou.get(m)  # NaN: no IoU study ran (--iou-configs 0), not an error
+        shown = mean_iou if mean_iou is not None and np.isfinite(mean_iou) else None
+        rows.append(f"| {m} (ours, sim) | " + " | ".join(cells) + f" | {_fmt(shown, digits='.3f')} |")
     paper = []
     for k in cols:
         r, t = PAPER_SIM.get(k, (None, None))
@@ -276,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{m:>8} {pose:>4} {seed:>4} {errs} {iou[m]:>6.3f} {r['seconds']['total']:>6.1f}  {r['note']}",
                       flush=True)
     summary = {m: summarize(rs, args.motions) for m, rs in runs.items()}
-    iou_mean = {m: float(np.nanmean(v)) if v else float("nan") for m, v in ious.items()}
+    iou_mean = {m: _finite_mean(v) for m, v in ious.items()}
     header = (f"{args.poses} camera poses x {args.seeds} runs, {args.width}x{args.height}, {args.motions} motions; "
               f"median errors, mean IoU over {args.iou_configs} configurations per run")
     table = markdown_table(summary, iou_mean, args.motions, header)

@@ -29,6 +29,15 @@ def test_tiny_marker_run_writes_the_figures(script, tmp_path):
         assert (tmp_path / name).stat().st_size > 0
 
 
+def test_no_iou_study_shows_as_a_dash_not_inf(script):
+    """--iou-configs 0: each run's IoU is NaN; the table says "-" (inf means no estimate), the mean is NaN."""
+    summary = {"marker": {"rot": [1e-3] * 25, "trans": [1e-3] * 25}}
+    table = script.markdown_table(summary, {"marker": script._finite_mean([float("nan")] * 3)}, 25, "header")
+    row = next(line for line in table.splitlines() if line.startswith("| marker"))
+    assert row.endswith("| - |") and "inf" not in row
+    assert script._finite_mean([0.5, float("nan"), 0.7]) == pytest.approx(0.6)
+
+
 def test_unknown_method_is_an_error(script):
     with pytest.raises(SystemExit):
         script.main(["--methods", "apriltag"])
