@@ -322,6 +322,11 @@ class _Motion:
     points: FloatArray | None = None  # (len(tracks), 3) last refined points, NaN where unknown
     weak: MotionGeometry | None = None  # a rigid fit too few tracks follow: for the one-axis search alone
 
+    @property
+    def search_axis(self) -> MotionGeometry | None:
+        """The axis the one-axis search starts from: the motion's, else its weak one (None: neither)."""
+        return self.geometry if self.geometry is not None else self.weak
+
 
 #: ``MotionReport.conics`` of a motion whose conics did not run: with ``CalibratorConfig.rigid_always`` they
 #: serve as the rigid front end's start and fallback, and its fit from the refined pose's prediction needs neither.
@@ -804,8 +809,8 @@ class Calibrator:
             if fused is not None:
                 return fused, ""
             why = f"{why}; {why_alone}" if why else why_alone
-        if rescued is None and cfg.one_axis is not None and any(
-                self._motions[k].geometry is not None or self._motions[k].weak is not None for k in live):
+        if rescued is None and cfg.one_axis is not None and any(self._motions[k].search_axis is not None
+                                                                for k in live):
             fused, why_one = self._one_axis_rescue(live, with_axis)
             if fused is not None:
                 return fused, ""
@@ -846,11 +851,10 @@ class Calibrator:
         weak = [j for j in live if self._motions[j].weak is not None and self._one_axis_tries.get(j, 0) < most]
         if not left + weak or sum(self._one_axis_tries.values()) >= every:
             return None, f"{prefix}: searched {most} times from each axis or {every} in all"
-        k = max(left or weak, key=lambda j: int(np.sum((self._motions[j].geometry or self._motions[j].weak)
-                                                       .track_inliers)))
+        k = max(left or weak, key=lambda j: int(np.sum(self._motions[j].search_axis.track_inliers)))
         self._one_axis_tries[k] = self._one_axis_tries.get(k, 0) + 1
         m = self._motions[k]
-        geometry = m.geometry or m.weak
+        geometry = m.search_axis
         assert geometry is not None
         which = f"motion {k + 1}" + ("" if m.geometry is not None else
                                      f", a weak axis: {int(np.sum(geometry.track_inliers))} of "

@@ -919,15 +919,16 @@ def fit_rigid_axis(uv: list[FloatArray], deltas: list[FloatArray], focal: float,
     keep = track_rms <= threshold
     n_in, n_need = int(keep.sum()), max(config.min_tracks, int(np.ceil(config.min_inlier_fraction * L)))
     rms_in = float(np.sqrt(np.mean(track_rms[keep] ** 2))) if n_in else float("inf")
+    fit = RigidAxisFit(a, p, axis_std, track_rms, keep, rms_in, from_prediction)
+    fixed = axis_std <= config.max_axis_std
     if n_in < n_need:
-        weak = (RigidAxisFit(a, p, axis_std, track_rms, keep, rms_in, from_prediction)
-                if n_in >= config.min_tracks and axis_std <= config.max_axis_std else None)
         raise NonRigidTracksError(f"rigid front end: only {n_in} of {L} tracks move rigidly together within "
-                                  f"{threshold:.2g} px (need {n_need})", weak)
-    if not axis_std <= config.max_axis_std:
+                                  f"{threshold:.2g} px (need {n_need})",
+                                  fit if n_in >= config.min_tracks and fixed else None)
+    if not fixed:
         raise DegenerateMotionError(
             f"rigid front end: the tracks do not fix the axis (1-sigma {axis_std:.3f} rad > {config.max_axis_std})")
-    return RigidAxisFit(a, p, axis_std, track_rms, keep, rms_in, from_prediction)
+    return fit
 
 
 def _line_starts(lines: list[tuple[FloatArray, FloatArray]]) -> list[tuple[FloatArray, FloatArray]]:
