@@ -57,12 +57,13 @@ differs from the part). What guards it:
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
 from solver.arrays import FloatArray
+from solver.camera import pixels_from_camera_points
 from solver.errors import (
     InsufficientMotionsError,
     InvalidInputError,
@@ -77,7 +78,6 @@ from solver.outlines import (
     EdgePairs,
     ImageEdges,
     OutlineConfig,
-    outline_residuals,
     outline_residuals_and_jacobian,
     pair_contour_points,
     project_base_points,
@@ -96,6 +96,8 @@ MIN_POLARITY_SHARE = 0.1
 #: A Gauss-Newton step, or a pairing's whole move, shorter than this in units of the fused pose's 1-sigma (its length
 #: under the prior's information plus the outlines' honest one at the fuse's start) ends it.
 _CONVERGED_SIGMA = 0.02
+#: ``_capped_scores`` projects at most about this many contour points at once (poses x points)
+_SCORED_POINTS = 200_000
 
 
 @dataclass(frozen=True)
@@ -455,27 +457,36 @@ class OutlineAdjustment:
                                                f"{cap:g} px of the images' edges")
         return best_T, step
 
-    def capped_scores(self, T_render: FloatArray, poses: FloatArray, cap_px: float, stride: int = 1) -> FloatArray:
+    def capped_scores(self, T_render: FloatArray, poses: FloatArray, cap_px: float, stride: int = 1,
+                      screen: tuple[int, int] | None = None) -> FloatArray:
         """(N,) px^2: how well each of ``poses`` (N, 4, 4) puts the robot's contours on the images' edges.
 
         Every image's contour is rendered at ``T_render`` (4, 4) (so the poses should lie near it), then each pose
         is scored as ``search_along`` scores: the mean over contour points in front of the camera of min(d, cap_px)^2,
         d the distance to the nearest edge of a matching direction; NaN where no point is in front. ``stride`` > 1:
-        every stride-th contour point only (a search's cheaper ranking).
+        every stride-th contour point only (a search's cheaper ranking). ``screen`` = (s, k): every pose is scored
+        first with every s-th point, and only the k best of them with every ``stride``-th; the others score inf.
 
         Raises:
-            InvalidInputError: a non-rigid pose, a cap that is not positive or a stride below 1.
+            InvalidInputError: a non-rigid pose, a cap that is not positive, a stride or screen below 1.
             InsufficientMotionsError: no images.
         """
         T0 = check_transform(np.asarray(T_render, dtype=np.float64), "T_render")
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
-        if not cap_px > 0 or stride < 1:
-            raise InvalidInputError(f"cap_px must be > 0 and stride >= 1, got {cap_px}, {stride}")
+        if not cap_px > 0 or stride < 1 or (screen is not None and min(screen) < 1):
+            raise InvalidInputError(f"cap_px must be > 0, stride and screen >= 1, got {cap_px}, {stride}, {screen}")
         if not self._images:
             raise InsufficientMotionsError("no outline images to score with")
         for cached in self._images:
             cached.render(self.renderer, T0, self.intrinsics)
-        return np.array([self._capped_score(check_transform(T, "a pose"), cap_px, stride) for T in poses])
+        poses = np.stack([check_transform(T, "a pose") for T in poses])
+        if screen is None or screen[1] >= len(poses):
+            return self._capped_scores(poses, cap_px, stride)
+        screened = self._capped_scores(poses, cap_px, screen[0])
+        best = np.argsort(np.where(np.isnan(screened), np.inf, screened), kind="stable")[:screen[1]]
+        scores = np.full(len(poses), np.inf)
+        scores[best] = self._capped_scores(poses[best], cap_px, stride)
+        return scores
 
     def _require_groups(self, fewest: int) -> None:
         if self.n_groups < fewest:
@@ -539,22 +550,44 @@ class OutlineAdjustment:
                              normal.sigma_px, rendered, normal.polarity_offset_px, normal.polarity_direction_px,
                              prior_scale)
 
-    def _capped_score(self, T: FloatArray, cap_px: float, stride: int = 1) -> float:
-        """Mean over every image's contour points in front of the camera of min(d, cap_px)^2, px^2.
+    def _capped_scores(self, poses: FloatArray, cap_px: float, stride: int = 1) -> FloatArray:
+        """(N,) px^2: per pose (N, 4, 4), the mean over the contour points in front of the camera of min(d, cap_px)^2.
 
-        d: the distance along its normal to the nearest edge of a matching direction (cap_px for a point with none
-        within cap_px). NaN when no point is in front. ``stride``: every stride-th contour point only.
+        d: the distance along its normal to the nearest edge of a matching direction (as ``pair_contour_points``
+        pairs them; cap_px for a point with none within cap_px). NaN where no point is in front. ``stride``: every
+        stride-th contour point only. The poses are scored together, a chunk at a time: one projection and one
+        nearest-edge query per image for all of a chunk's poses.
         """
-        config = replace(self.config.outline, max_match_px=cap_px)
         seen = [cached for cached in self._images if cached.contour is not None and len(cached.contour.points_base)]
-        contours = [cached.contour if stride == 1 else
-                    ContourPoints(cached.contour.points_base[::stride], cached.contour.outward[::stride])
-                    for cached in seen]
-        pairs = pair_contour_points(T, contours, [cached.image.edges for cached in seen], self.intrinsics, config)
-        if pairs.in_front == 0:
-            return float("nan")
-        r = outline_residuals(T, pairs.points_base, pairs.edge_points, pairs.normals, self.intrinsics)
-        return (float(np.sum(np.minimum(r**2, cap_px**2))) + (pairs.in_front - len(r)) * cap_px**2) / pairs.in_front
+        scores = np.full(len(poses), np.nan)
+        if not seen:
+            return scores
+        points = [cached.contour.points_base[::stride] for cached in seen]
+        outward = [cached.contour.outward[::stride] for cached in seen]
+        bounds = np.cumsum([0] + [len(p) for p in points])
+        all_points = np.concatenate(points)
+        max_angle_deg = self.config.outline.max_normal_angle_deg
+        chunk = max(1, _SCORED_POINTS // len(all_points))
+        for start in range(0, len(poses), chunk):
+            Ts = poses[start:start + chunk]
+            cam = all_points @ Ts[:, :3, :3].transpose(0, 2, 1) + Ts[:, None, :3, 3]  # (n, M, 3)
+            front = cam[..., 2] > 1e-6
+            pixels = np.full(cam.shape[:2] + (2,), -1e9)
+            pixels[front] = pixels_from_camera_points(cam[front], self.intrinsics)
+            total = np.zeros(len(Ts))
+            for cached, directions, lo, hi in zip(seen, outward, bounds[:-1], bounds[1:], strict=True):
+                edges = cached.image.edges
+                image_front = front[:, lo:hi]
+                image_pixels = pixels[:, lo:hi].reshape(-1, 2)
+                idx, matched, _ = edges.matching(image_pixels, np.tile(directions, (len(Ts), 1)), cap_px, max_angle_deg)
+                paired = image_front.reshape(-1) & matched
+                r = np.sum((image_pixels[paired] - edges.points[idx[paired]]) * edges.normals[idx[paired]], axis=1)
+                capped = np.where(image_front, cap_px**2, 0.0)  # (n, m): a point in front with no edge counts cap^2
+                capped.reshape(-1)[paired] = np.minimum(r**2, cap_px**2)
+                total += capped.sum(axis=1)
+            in_front = front.sum(axis=1)
+            scores[start:start + chunk] = np.where(in_front > 0, total / np.maximum(in_front, 1), np.nan)
+        return scores
 
     def _check_prior_reach(self, normal: _Normal, covariance_prior: FloatArray, max_prior_px: float) -> None:
         """Refuse a tracks' pose so uncertain that pairing its contours with the nearest edges would be a guess.

@@ -81,6 +81,18 @@ class ImageEdges:
         found = np.isfinite(dist)
         return np.where(found, idx, 0).astype(np.int64), found
 
+    def matching(self, pixels: FloatArray, outward: FloatArray, max_px: float, max_angle_deg: float
+                 ) -> tuple[NDArray[np.int64], NDArray[np.bool_], FloatArray]:
+        """Each pixel's (N, 2) nearest edge point, kept if within ``max_px`` and of a matching direction.
+
+        Matching: the edge's normal within ``max_angle_deg`` of the pixel's outward direction (N, 2), either sign.
+        Returns (N,) indices, (N,) whether each matches, and (N,) the cosine between normal and outward direction
+        (positive where the image is brighter outside).
+        """
+        idx, found = self.nearest(pixels, max_px)
+        along = np.sum(self.normals[idx] * outward, axis=1)
+        return idx, found & (np.abs(along) >= np.cos(np.radians(max_angle_deg))), along
+
 
 def image_edges(grey: ImageArray, low: float = 15.0, high: float = 40.0, sigma_px: float = 0.0) -> ImageEdges:
     """Canny's edges of a grey image, each moved to sub-pixel along its gradient.
@@ -311,7 +323,6 @@ def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoi
     if not contours:
         return EdgePairs(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)), image=np.zeros(0, np.int64),
                          polarity=np.zeros(0))
-    cos_min = np.cos(np.radians(config.max_normal_angle_deg))
     parts: list[tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int64], FloatArray, FloatArray]] = [
         (np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))]
     strong = all(image.strengths is not None for image in edges)  # every image's edges know their contrast
@@ -323,10 +334,9 @@ def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoi
                                                               np.split(all_visible, split), strict=True)):
         if len(image.points) == 0:  # an image without edges pairs nothing
             continue
-        idx, found = image.nearest(pixels, config.max_match_px)
+        idx, matched, along = image.matching(pixels, contour.outward, config.max_match_px, config.max_normal_angle_deg)
         normals = image.normals[idx]
-        along = np.sum(normals * contour.outward, axis=1)
-        keep = visible & found & (np.abs(along) >= cos_min)
+        keep = visible & matched
         sign = np.sign(along[keep])  # the edges' normals point from dark to bright
         strengths = image.strengths[idx[keep]] if strong and image.strengths is not None else np.zeros(len(sign))
         parts.append((contour.points_base[keep], image.points[idx[keep]], normals[keep] * sign[:, None],

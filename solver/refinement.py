@@ -266,25 +266,35 @@ def triangulate_tracks(tracks: TrackSet, T_camera_base: FloatArray) -> tuple[Flo
 
 def _triangulated(tracks: TrackSet, T_camera_base: FloatArray) -> tuple[FloatArray, NDArray[np.bool_], FloatArray]:
     """``triangulate_tracks``' points (T, 3) and ok (T,), and every observation's camera point (P, 3) of them."""
-    R, t = T_camera_base[:3, :3], T_camera_base[:3, 3]
-    M = np.einsum("ij,pjk->pik", R, tracks.rot)  # (P, 3, 3)
-    c = tracks.pivot[tracks.track] @ R.T + t  # (P, 3)
-    u, v = tracks.uv[:, 0], tracks.uv[:, 1]
-    A = np.stack([M[:, 0] - u[:, None] * M[:, 2], M[:, 1] - v[:, None] * M[:, 2]], axis=1)  # (P,2,3)
-    b = np.stack([u * c[:, 2] - c[:, 0], v * c[:, 2] - c[:, 1]], axis=1)  # (P, 2)
-    AtA = np.zeros((tracks.n_tracks, 3, 3))
-    Atb = np.zeros((tracks.n_tracks, 3))
-    np.add.at(AtA, tracks.track, np.einsum("pki,pkj->pij", A, A))
-    np.add.at(Atb, tracks.track, np.einsum("pki,pk->pi", A, b))
+    points, ok, camera = _triangulated_at(tracks, T_camera_base[None])
+    return points[0], ok[0], camera[0]
+
+
+def _triangulated_at(tracks: TrackSet, poses: FloatArray) -> tuple[FloatArray, NDArray[np.bool_], FloatArray]:
+    """``_triangulated`` at each of poses (N, 4, 4) at once: points (N, T, 3), ok (N, T), camera points (N, P, 3)."""
+    R, t = poses[:, :3, :3], poses[:, :3, 3]
+    n, T = len(poses), tracks.n_tracks
+    M = R[:, None] @ tracks.rot  # (N, P, 3, 3)
+    c = tracks.pivot[tracks.track] @ R.transpose(0, 2, 1) + t[:, None]  # (N, P, 3)
+    u, v = tracks.uv[:, 0, None], tracks.uv[:, 1, None]
+    A = np.stack([M[..., 0, :] - u * M[..., 2, :], M[..., 1, :] - v * M[..., 2, :]], axis=2)  # (N, P, 2, 3)
+    b = np.stack([u[:, 0] * c[..., 2] - c[..., 0], v[:, 0] * c[..., 2] - c[..., 1]], axis=2)  # (N, P, 2)
+    # per-track sums over the observations: a (T, P) sparse matrix of ones, its rows in observation order
+    sums = sp.csr_matrix((np.ones(tracks.track.size), (tracks.track, np.arange(tracks.track.size))),
+                      shape=(T, tracks.track.size))
+    At = A.swapaxes(2, 3)  # (N, P, 3, 2)
+    AtA = (sums @ (At @ A).swapaxes(0, 1).reshape(tracks.track.size, -1)).reshape(T, n, 3, 3)
+    Atb = (sums @ (At @ b[..., None]).swapaxes(0, 1).reshape(tracks.track.size, -1)).reshape(T, n, 3)
+    AtA, Atb = AtA.transpose(1, 0, 2, 3).copy(), Atb.transpose(1, 0, 2)
     det = np.linalg.det(AtA)
-    scale = np.einsum("tii->t", AtA) ** 3
+    scale = np.einsum("ntii->nt", AtA) ** 3
     ok = det > 1e-12 * np.maximum(scale, 1e-300)
     AtA[~ok] = np.eye(3)
-    y = np.linalg.solve(AtA, Atb[..., None])[..., 0]
+    y = np.linalg.solve(AtA, Atb[..., None])[..., 0]  # (N, T, 3)
     points = y + tracks.pivot
-    camera = np.einsum("pij,pj->pi", M, y[tracks.track]) + c
-    front = np.bincount(tracks.track, weights=(camera[:, 2] > 0).astype(float), minlength=tracks.n_tracks)
-    counts = np.bincount(tracks.track, minlength=tracks.n_tracks)
+    camera = np.einsum("npij,npj->npi", M, y[:, tracks.track]) + c
+    counts = np.bincount(tracks.track, minlength=T)
+    front = (sums @ (camera[..., 2] > 0).T.astype(float)).T  # (N, T): observations in front of the camera
     ok &= front == counts
     return points, ok, camera
 
@@ -301,8 +311,8 @@ def track_camera_points(tracks: TrackSet, T_camera_base: FloatArray, y: FloatArr
 
 
 def track_pixel_residuals(tracks: TrackSet, pc: FloatArray) -> FloatArray:
-    """(P, 2) px: the projections of camera points pc (P, 3) m minus the observations."""
-    return (pc[:, :2] / pc[:, 2:] - tracks.uv) * tracks.focal
+    """(..., P, 2) px: the projections of camera points pc (..., P, 3) m minus the observations."""
+    return (pc[..., :2] / pc[..., 2:] - tracks.uv) * tracks.focal
 
 
 def _left_jacobian(omega: FloatArray) -> FloatArray:
@@ -711,6 +721,8 @@ def _diagonal_blocks(blocks: FloatArray, tracks: TrackSet) -> tuple[FloatArray, 
 #: 1 px in norm): large enough for a warm start's step, so a pass does not spend its first
 #: iterations doubling a unit region (20-40% fewer evaluations on scripts/bench_solver.py).
 _TRUST_SCALE = 32.0
+#: ``linear_track_scores`` triangulates at most about this many observations at once (poses x observations)
+_SCORED_OBSERVATIONS = 200_000
 
 
 def _solve(tracks: TrackSet, T0: FloatArray, points: FloatArray, loss: str, f_scale: float,
@@ -1508,19 +1520,25 @@ def screen_start(tracks: TrackSet, T_init: FloatArray, config: RefinementConfig,
     return T, total / (2 * tracks.track.size)
 
 
-def linear_track_score(tracks: TrackSet, T_camera_base: FloatArray, cap_px: float) -> float:
-    """How well a pose lets every track be one rigid point, without an adjustment: px^2, comparable between poses.
+def linear_track_scores(tracks: TrackSet, poses: FloatArray, cap_px: float) -> FloatArray:
+    """How well each pose lets every track be one rigid point, without an adjustment: (N,) px^2, comparable.
 
-    Each track's point is triangulated linearly at the pose (``triangulate_tracks``); the score is the mean over every
-    observation of min(r^2, cap_px^2) per coordinate, r its reprojection residual, and cap_px^2 for every observation
-    of a track that cannot be triangulated or falls behind the camera (as ``screen_start``, with no pass of the
-    adjustment: thousands of poses can be scored, e.g. ``solver.one_axis.search_one_axis``).
+    At each of poses (N, 4, 4), each track's point is triangulated linearly (``triangulate_tracks``); the score is
+    the mean over every observation of min(r^2, cap_px^2) per coordinate, r its reprojection residual, and cap_px^2
+    for every observation of a track that cannot be triangulated or falls behind the camera (as ``screen_start``,
+    with no pass of the adjustment: thousands of poses can be scored, e.g. ``solver.one_axis.search_one_axis``; a
+    few at a time, together).
     """
-    _, ok, pc = _triangulated(tracks, T_camera_base)
-    good = ok[tracks.track]  # (an ok track's every observation is in front of the camera)
-    pc[~good, 2] = 1.0  # any depth: these observations cost the cap
-    r2 = np.minimum(np.sum(track_pixel_residuals(tracks, pc) ** 2, axis=1) / 2, cap_px**2)
-    return float(np.mean(np.where(good, r2, cap_px**2)))
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    scores = np.empty(len(poses))
+    chunk = max(1, _SCORED_OBSERVATIONS // max(tracks.track.size, 1))
+    for start in range(0, len(poses), chunk):
+        _, ok, pc = _triangulated_at(tracks, poses[start:start + chunk])
+        good = ok[:, tracks.track]  # (an ok track's every observation is in front of the camera)
+        pc[~good, 2] = 1.0  # any depth: these observations cost the cap
+        r2 = np.minimum(np.sum(track_pixel_residuals(tracks, pc) ** 2, axis=2) / 2, cap_px**2)
+        scores[start:start + chunk] = np.mean(np.where(good, r2, cap_px**2), axis=1)
+    return scores
 
 
 def start_points(tracks: TrackSet, T_init: FloatArray, points_init: FloatArray | None = None,

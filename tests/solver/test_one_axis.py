@@ -4,12 +4,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from solver import PANDA, SyntheticConfig, SyntheticScene, d415_intrinsics, sample_camera_pose
+from solver import PANDA, SyntheticConfig, SyntheticScene, d415_intrinsics, refinement, sample_camera_pose
 from solver.camera import normalized_from_pixels
 from solver.errors import InvalidInputError
 from solver.frames import perturb, pose_errors
 from solver.one_axis import OneAxisSearch, axis_frame, one_axis_poses, visible_bearings
-from solver.refinement import build_track_set, linear_track_score
+from solver.refinement import build_track_set, linear_track_scores
 
 K = d415_intrinsics()
 
@@ -83,25 +83,29 @@ def _track_set(T, rng, noise_px=0.0, motions=4):
     return build_track_set(motions_uv, K.focal)
 
 
-def test_the_linear_track_score_is_zero_at_the_truth_and_grows_away_from_it():
+def test_the_linear_track_score_is_zero_at_the_truth_and_grows_away_from_it(monkeypatch):
     rng = np.random.default_rng(11)
     T = sample_camera_pose(rng)
     tracks = _track_set(T, rng)
-    assert linear_track_score(tracks, T, 3.0) < 1e-12
-    near = linear_track_score(tracks, perturb(T, np.array([2e-3, 0, 0, 0, 5e-3, 0])), 3.0)
-    far = linear_track_score(tracks, perturb(T, np.array([0.1, -0.05, 0.05, 0.1, 0.0, 0.2])), 3.0)
-    assert 0.01 < near < far <= 9.0
-    # the robot 10 m behind the camera: nearly every observation costs the cap
-    behind = T.copy()
+    behind = T.copy()  # the robot 10 m behind the camera: nearly every observation costs the cap
     behind[2, 3] -= 10.0
-    assert 7.0 < linear_track_score(tracks, behind, 3.0) <= 9.0
+    poses = np.array([T, perturb(T, np.array([2e-3, 0, 0, 0, 5e-3, 0])),
+                      perturb(T, np.array([0.1, -0.05, 0.05, 0.1, 0.0, 0.2])), behind])
+    truth, near, far, back = linear_track_scores(tracks, poses, 3.0)
+    assert truth < 1e-12
+    assert 0.01 < near < far <= 9.0
+    assert 7.0 < back <= 9.0
+    # scored a pose at a time (chunks of one), the same
+    monkeypatch.setattr(refinement, "_SCORED_OBSERVATIONS", 1)
+    np.testing.assert_allclose(linear_track_scores(tracks, poses, 3.0), [truth, near, far, back], rtol=1e-12,
+                               atol=1e-15)
 
 
 def test_the_search_settings_are_checked():
     OneAxisSearch()
     for bad in ({"turn_step_deg": 0.0}, {"distances": (2.0, 1.0)}, {"fine_distance": 1.0},
                 {"outline_rounds": ()}, {"outline_rounds": ((12.0, 2.0, 1.2, 12.0),)}, {"max_tries": 0},
-                {"max_searches": 0}, {"outline_stride": 0}):
+                {"max_searches": 0}, {"outline_stride": 0}, {"outline_screen": (8, 0)}, {"outline_screen": (8,)}):
         with pytest.raises(InvalidInputError):
             OneAxisSearch(**bad)
 

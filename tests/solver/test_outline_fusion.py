@@ -5,6 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from solver import outline_fusion
 from solver.errors import InsufficientMotionsError, InvalidInputError, OutlineDisagreementError
 from solver.frames import perturb, pose_difference
 from solver.outline_fusion import (
@@ -14,7 +15,14 @@ from solver.outline_fusion import (
     consistent_prior_scale,
     disagreement_chi2,
 )
-from solver.outlines import ImageEdges, image_edges
+from solver.outlines import (
+    ContourPoints,
+    ImageEdges,
+    OutlineConfig,
+    image_edges,
+    outline_residuals,
+    pair_contour_points,
+)
 from tests.solver.spheres import CAMERA, T_TRUE, project_px, render_spheres, sphere_contour
 
 #: Six motions' images (one each) of three spheres: centre (3,) m in the base frame, radius m.
@@ -420,3 +428,30 @@ def test_capped_scores_rank_the_true_pose_first_with_every_point_or_every_other(
         adjustment.capped_scores(T_TRUE, poses, 6.0, 0)
     with pytest.raises(InsufficientMotionsError):
         OutlineAdjustment(_renderer, CAMERA, UNLIMITED).capped_scores(T_TRUE, poses, 6.0)
+
+
+def test_capped_scores_are_each_poses_paired_residuals_capped_and_screening_keeps_the_best(edges, monkeypatch):
+    """Scored together (in chunks of a few poses), each pose's score is the mean over its contour points in front of
+    the camera of min(r, cap)^2 from its own pairing (``pair_contour_points``, ``outline_residuals``), cap^2 for a
+    point left unpaired; a screen keeps the k best of a cheaper ranking, scored as without it, the rest inf."""
+    monkeypatch.setattr(outline_fusion, "_SCORED_POINTS", 700)  # several chunks of poses
+    adjustment = _adjustment(edges)
+    rng = np.random.default_rng(3)
+    poses = np.array([perturb(T_TRUE, xi) for xi in rng.normal(0, [4e-3] * 3 + [3e-3] * 3, (40, 6))])
+    cap, stride = 6.0, 2
+    scores = adjustment.capped_scores(T_TRUE, poses, cap, stride)
+    contours = [_renderer(T_TRUE, np.array([float(k)])) for k in range(len(edges))]
+    contours = [ContourPoints(c.points_base[::stride], c.outward[::stride]) for c in contours]
+    for T, score in zip(poses, scores, strict=True):
+        pairs = pair_contour_points(T, contours, edges, CAMERA, OutlineConfig(max_match_px=cap))
+        r = outline_residuals(T, pairs.points_base, pairs.edge_points, pairs.normals, CAMERA)
+        assert pairs.in_front > len(r) > 0
+        expected = (np.sum(np.minimum(r**2, cap**2)) + (pairs.in_front - len(r)) * cap**2) / pairs.in_front
+        assert score == pytest.approx(expected, rel=1e-12)
+    screened = adjustment.capped_scores(T_TRUE, poses, cap, stride, screen=(4, 10))
+    kept = np.isfinite(screened)
+    assert kept.sum() == 10 and np.all(screened[~kept] == np.inf)
+    np.testing.assert_allclose(screened[kept], scores[kept], rtol=1e-12)
+    assert int(np.argmin(screened)) == int(np.argmin(scores))
+    with pytest.raises(InvalidInputError):
+        adjustment.capped_scores(T_TRUE, poses, cap, stride, screen=(0, 10))
