@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from solver import PANDA, SyntheticConfig, SyntheticScene, d415_intrinsics, refinement, sample_camera_pose
+from solver import PANDA, SyntheticConfig, SyntheticScene, d415_intrinsics, one_axis, refinement, sample_camera_pose
 from solver.camera import normalized_from_pixels
-from solver.errors import InvalidInputError
+from solver.errors import InsufficientMotionsError, InvalidInputError
 from solver.frames import perturb, pose_errors
-from solver.one_axis import OneAxisSearch, axis_frame, one_axis_poses, visible_bearings
+from solver.one_axis import OneAxisSearch, axis_frame, coarse_basins, one_axis_poses, search_one_axis, visible_bearings
 from solver.refinement import build_track_set, linear_track_scores
 
 K = d415_intrinsics()
@@ -118,3 +118,52 @@ def test_pose_errors_of_the_truths_member_are_nil():  # the family at the truth'
     errors = [pose_errors(M, T) for M in grid]
     assert errors[1][0] < 1e-9 and errors[1][1] < 1e-9
     assert errors[0][0] == pytest.approx(np.radians(10.0)) and errors[2][0] == pytest.approx(np.radians(10.0))
+
+
+def test_coarse_basins_are_the_lowest_local_minima_with_the_turn_wrapping_round():
+    turn, bearing, distance = np.meshgrid(np.arange(12), np.arange(5), np.arange(6), indexing="ij")
+    scores = 10.0 + 0.0 * turn
+    for (t, b, d), depth in {(3, 2, 2): 1.0, (8, 1, 4): 3.0, (0, 4, 0): 2.0, (11, 4, 1): 1.5}.items():
+        scores[t, b, d] = depth  # (0, 4, 0) and (11, 4, 1) are neighbours across the wrap: only the lower counts
+    scores[6, 0, 5] = np.nan
+    flat = [int(np.ravel_multi_index(i, scores.shape)) for i in [(3, 2, 2), (11, 4, 1), (8, 1, 4)]]
+    np.testing.assert_array_equal(coarse_basins(scores, 3), flat)
+    np.testing.assert_array_equal(coarse_basins(scores, 10)[:3], flat)  # then the plateau's members
+    with pytest.raises(InsufficientMotionsError):
+        coarse_basins(np.full((3, 3, 3), np.nan), 2)
+
+
+def _apart(P, Q) -> float:
+    """rad^2 + m^2: how far pose P is from pose Q."""
+    rotation, translation = pose_errors(P, Q)
+    return rotation**2 + translation**2
+
+
+class _OutlinesThatKnowTheTruth:
+    """Scores poses by their distance from T (the outline rounds' interface)."""
+
+    def __init__(self, T):
+        self.T = T
+
+    def capped_scores(self, T_render, poses, cap_px, stride=1, screen=None):
+        return np.array([_apart(P, self.T) for P in poses])
+
+
+def test_the_outlines_pick_among_the_tracks_basins(monkeypatch):
+    """Tracks whose score is lowest at a wrong member (the robot turned 90 degrees further about the axis) and only
+    second lowest at the truth: searched from the lowest basin alone the search ends near the wrong member (the outline
+    rounds reach 15 degrees); from two, the outlines (here scoring the distance to the truth) pick the truth's."""
+    rng = np.random.default_rng(4)
+    T = sample_camera_pose(rng)
+    axis, (phi, psi, d) = _true_member(T, np.full(7, 0.1), 3)
+    wrong = one_axis_poses(*axis, np.array([phi + np.pi / 2]), np.array([psi]), np.array([d]))[0]
+
+    def two_wells(tracks, poses, cap_px):
+        return np.array([min(1.0 + _apart(P, T), 0.5 + _apart(P, wrong)) for P in poses])
+
+    monkeypatch.setattr(one_axis, "linear_track_scores", two_wells)
+    found, _ = search_one_axis(None, *axis, K, _OutlinesThatKnowTheTruth(T), OneAxisSearch(basins=1))
+    assert pose_errors(found, T)[0] > np.radians(70.0)  # the rounds turn it towards the truth by 15 degrees at most
+    found, _ = search_one_axis(None, *axis, K, _OutlinesThatKnowTheTruth(T), OneAxisSearch(basins=2))
+    rotation, translation = pose_errors(found, T)
+    assert rotation < np.radians(1.0) and translation < 0.03
