@@ -105,7 +105,8 @@ def test_the_search_settings_are_checked():
     OneAxisSearch()
     for bad in ({"turn_step_deg": 0.0}, {"distances": (2.0, 1.0)}, {"fine_distance": 1.0},
                 {"outline_rounds": ()}, {"outline_rounds": ((12.0, 2.0, 1.2, 12.0),)}, {"max_tries": 0},
-                {"max_searches": 0}, {"outline_stride": 0}, {"outline_screen": (8, 0)}, {"outline_screen": (8,)}):
+                {"max_searches": 0}, {"outline_stride": 0}, {"outline_screen": (8, 0)}, {"outline_screen": (8,)},
+                {"tilt_deg": -1.0}, {"tilt_step_deg": 0.0}):
         with pytest.raises(InvalidInputError):
             OneAxisSearch(**bad)
 
@@ -162,8 +163,30 @@ def test_the_outlines_pick_among_the_tracks_basins(monkeypatch):
         return np.array([min(1.0 + _apart(P, T), 0.5 + _apart(P, wrong)) for P in poses])
 
     monkeypatch.setattr(one_axis, "linear_track_scores", two_wells)
-    found, _ = search_one_axis(None, *axis, K, _OutlinesThatKnowTheTruth(T), OneAxisSearch(basins=1))
+    found, _ = search_one_axis(None, *axis, K, _OutlinesThatKnowTheTruth(T), OneAxisSearch(basins=1, tilt_deg=0.0))
     assert pose_errors(found, T)[0] > np.radians(70.0)  # the rounds turn it towards the truth by 15 degrees at most
-    found, _ = search_one_axis(None, *axis, K, _OutlinesThatKnowTheTruth(T), OneAxisSearch(basins=2))
+    found, _ = search_one_axis(None, *axis, K, _OutlinesThatKnowTheTruth(T), OneAxisSearch(basins=2, tilt_deg=0.0))
     rotation, translation = pose_errors(found, T)
     assert rotation < np.radians(1.0) and translation < 0.03
+
+
+def test_a_tilted_axis_is_found_when_the_motions_is_off(monkeypatch):
+    """The motion's axis seen 7 degrees off the truth (turned out of its plane and within it): no member of its family
+    lies within 5 degrees of the truth; tilted, the family of an axis within a tilt step of the truth's holds a member
+    the outlines (here scoring the distance to the truth) find within 3 degrees and 5 cm."""
+    rng = np.random.default_rng(6)
+    T = sample_camera_pose(rng)
+    (a_b, d_b, a_c, reference), _ = _true_member(T, np.full(7, -0.2), 2)
+    off = Rotation.from_rotvec(np.radians(5.0) * np.cross(a_c, reference) / np.linalg.norm(np.cross(a_c, reference)))
+    off = off * Rotation.from_rotvec(np.radians(5.0) * reference)
+    wrong_axis = off.apply(a_c)
+    assert np.degrees(np.arccos(wrong_axis @ a_c)) > 6.5
+    monkeypatch.setattr(one_axis, "linear_track_scores", lambda tracks, poses, cap_px: np.array(
+        [_apart(P, T) for P in poses]))  # the tracks, too, prefer the members nearest the truth
+    for tilt_deg, within in ((0.0, False), (12.0, True)):
+        found, _ = search_one_axis(None, a_b, d_b, wrong_axis, reference, K, _OutlinesThatKnowTheTruth(T),
+                                   OneAxisSearch(basins=1, tilt_deg=tilt_deg))
+        rotation, translation = pose_errors(found, T)
+        assert (rotation < np.radians(3.0) and translation < 0.05) == within, (tilt_deg, rotation, translation)
+        if not within:
+            assert rotation > np.radians(5.0)
