@@ -334,6 +334,19 @@ class OutlineAdjustment:
         """The images added so far, in order."""
         return tuple(c.image for c in self._images)
 
+    def contour_rays(self, T: FloatArray) -> FloatArray:
+        """(N, 2): every image's contour points (as last rendered) seen from T (4, 4), normalized image coordinates.
+
+        x / z and y / z, without the lens's distortion; points behind the camera left out.
+        """
+        T = check_transform(np.asarray(T, dtype=np.float64), "T")
+        parts = [c.contour.points_base for c in self._images if c.contour is not None]
+        if not parts:
+            return np.zeros((0, 2))
+        cam = np.concatenate(parts) @ T[:3, :3].T + T[:3, 3]
+        cam = cam[cam[:, 2] > 1e-6]
+        return cam[:, :2] / cam[:, 2:]
+
     @property
     def n_images(self) -> int:
         """Images added so far."""

@@ -382,6 +382,11 @@ HOLD_MAX_UPDATES = 3
 #: ``Calibrator._outlines_alone``: the prior on its start, 1-sigma (rad, m): as wide as the one-axis search's first
 #: outline round (``solver.one_axis``), so the outlines alone place the pose.
 OUTLINES_ALONE_PRIOR_STD = (0.05, 0.05)
+#: A pose from one motion's axis (``_one_axis_rescue``) must draw the robot at least this large against its tracks: the
+#: 5-95 % box of its contour points' normalized coordinates, as a share of the tracks' (``_spread``). Measured: 0.91
+#: and 1.07 at rescued as-shipped iiwa 1080p poses (poses 1 and 5, 0.1 mm off); 0.16 at a 720p pose 9 rescued 5.4 m
+#: off, the robot drawn small on a few edges with a residual scale under 1 px.
+MIN_OUTLINE_SPREAD = 0.5
 #: Poses along the tracks' free direction that ``Calibrator._outline_rescue`` first scores with the outlines: where
 #: the motions' joints lie this many log-spaced distances from the camera within ``family_distances`` (0.3-5 m: 7 %
 #: apart; ``OutlineAdjustment.search_along`` then searches between the best one's neighbours).
@@ -864,7 +869,15 @@ class Calibrator:
                                    geometry.reference_cam, self.intrinsics, self.outlines, self.config.one_axis)
         except ArcCalibError as exc:
             return None, f"{prefix} ({which}): {type(exc).__name__}: {exc}"
-        return self._outlines_alone(T, f"{prefix} ({which})")
+        fused, why = self._outlines_alone(T, f"{prefix} ({which})")
+        if fused is None:
+            return None, why
+        tracks = np.concatenate([uv for j in live for uv, _, _ in self._motions[j].tracks])
+        share = _spread(self.outlines.contour_rays(fused.T_camera_base)) / max(_spread(tracks), 1e-12)
+        if share < MIN_OUTLINE_SPREAD:
+            return None, (f"{prefix} ({which}): the robot's outline there spans {share:.2f} of its tracks' spread (at "
+                          f"least {MIN_OUTLINE_SPREAD:g}): a pose far off")
+        return fused, ""
 
     def _rescue_from(self, T: FloatArray, live: list[int], joints: FloatArray, tracks: TrackSet,
                      max_prior_px: float | None = None) -> tuple[OutlineFusion | None, str]:
@@ -1481,3 +1494,11 @@ class Calibrator:
             else:
                 r.accepted = False
                 r.reason = r.stage_one or "waiting: no estimate yet"
+
+
+def _spread(xy: FloatArray) -> float:
+    """The diagonal of the 5-95 % box of points (N, 2) (0.0 for none)."""
+    if len(xy) == 0:
+        return 0.0
+    lo, hi = np.percentile(xy, [5.0, 95.0], axis=0)
+    return float(np.linalg.norm(hi - lo))

@@ -281,7 +281,7 @@ def _triangulated_at(tracks: TrackSet, poses: FloatArray) -> tuple[FloatArray, N
     b = np.stack([u[:, 0] * c[..., 2] - c[..., 0], v[:, 0] * c[..., 2] - c[..., 1]], axis=2)  # (N, P, 2)
     # per-track sums over the observations: a (T, P) sparse matrix of ones, its rows in observation order
     sums = sp.csr_matrix((np.ones(tracks.track.size), (tracks.track, np.arange(tracks.track.size))),
-                      shape=(T, tracks.track.size))
+                         shape=(T, tracks.track.size))
     At = A.swapaxes(2, 3)  # (N, P, 3, 2)
     AtA = (sums @ (At @ A).swapaxes(0, 1).reshape(tracks.track.size, -1)).reshape(T, n, 3, 3)
     Atb = (sums @ (At @ b[..., None]).swapaxes(0, 1).reshape(tracks.track.size, -1)).reshape(T, n, 3)

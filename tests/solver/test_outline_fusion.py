@@ -455,3 +455,16 @@ def test_capped_scores_are_each_poses_paired_residuals_capped_and_screening_keep
     assert int(np.argmin(screened)) == int(np.argmin(scores))
     with pytest.raises(InvalidInputError):
         adjustment.capped_scores(T_TRUE, poses, cap, stride, screen=(0, 10))
+
+
+def test_contour_rays_are_the_contours_pixels_through_the_inverse_camera(edges):
+    """After scoring at the truth (the contours rendered there), each contour point's normalized coordinates are its
+    projected pixel through K^-1 (the spheres' camera has no distortion)."""
+    adjustment = _adjustment(edges)
+    adjustment.capped_scores(T_TRUE, T_TRUE[None], 6.0)
+    rays = adjustment.contour_rays(T_TRUE)
+    contours = [_renderer(T_TRUE, np.array([float(k)])) for k in range(len(edges))]
+    pixels = np.concatenate([project_px(T_TRUE, c.points_base) for c in contours])
+    K = CAMERA.K
+    np.testing.assert_allclose(rays, (pixels - K[:2, 2]) / np.diag(K)[:2], atol=1e-9)
+    assert OutlineAdjustment(_renderer, CAMERA, UNLIMITED).contour_rays(T_TRUE).shape == (0, 2)
