@@ -90,6 +90,8 @@ class ImageEdges:
         (positive where the image is brighter outside).
         """
         idx, found = self.nearest(pixels, max_px)
+        if len(self.points) == 0:  # no edge: nothing matches
+            return idx, found, np.zeros(len(idx))
         along = np.sum(self.normals[idx] * outward, axis=1)
         return idx, found & (np.abs(along) >= np.cos(np.radians(max_angle_deg))), along
 

@@ -468,3 +468,12 @@ def test_contour_rays_are_the_contours_pixels_through_the_inverse_camera(edges):
     K = CAMERA.K
     np.testing.assert_allclose(rays, (pixels - K[:2, 2]) / np.diag(K)[:2], atol=1e-9)
     assert OutlineAdjustment(_renderer, CAMERA, UNLIMITED).contour_rays(T_TRUE).shape == (0, 2)
+
+
+def test_an_image_without_edges_scores_the_cap(edges):
+    """An image whose edge detector found nothing: its contour points in front count cap^2 each."""
+    empty = ImageEdges(np.zeros((0, 2)), np.zeros((0, 2)))
+    adjustment = _adjustment([empty] * len(edges))
+    assert adjustment.capped_scores(T_TRUE, T_TRUE[None], 6.0)[0] == pytest.approx(36.0)
+    mixed = _adjustment([empty] + list(edges[1:]))
+    assert 0.0 < mixed.capped_scores(T_TRUE, T_TRUE[None], 6.0)[0] < 36.0
