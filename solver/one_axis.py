@@ -312,32 +312,31 @@ def _tilted(axis_base: FloatArray, point_base: FloatArray, axis_cam: FloatArray,
     a_c, f = axis_plane(axis_cam, reference_cam)
     normal = np.cross(a_c, f)
     joint = T[:3, :3] @ np.asarray(point_base, dtype=np.float64) + T[:3, 3]  # the joint's point, camera frame
+    d = float(np.linalg.norm(joint))
+    reference = joint / d  # every tilted axis's line runs through it
     turn_deg, _, _, cap_px = cfg.outline_rounds[0]
     turns = np.radians(np.linspace(-turn_deg, turn_deg, 13))
     scales = np.array([0.9, 1.0, 1.1])
     angles = np.radians(np.arange(-cfg.tilt_deg, cfg.tilt_deg + 1e-9, cfg.tilt_step_deg))
-    families: list[tuple[FloatArray, FloatArray, float, float, float]] = []  # (A', reference', phi, psi, d)
+    families: list[tuple[FloatArray, float, float]] = []  # (A', phi, psi)
     members: list[FloatArray] = []
     for alpha in angles:
         for beta in angles:
             axis = Rotation.from_rotvec(alpha * normal).apply(Rotation.from_rotvec(beta * f).apply(a_c))
-            reference = joint / np.linalg.norm(joint)
             if np.linalg.norm(np.cross(axis, reference)) < 1e-6:  # the tilted axis points at the camera
                 continue
             R0, tilted_a, tilted_f = axis_frame(axis_base, axis, reference)
             x, y, z, w = Rotation.from_matrix(T[:3, :3] @ R0.T).as_quat()  # the turn about A' nearest T's rotation
             phi = 2.0 * float(np.arctan2(np.array([x, y, z]) @ tilted_a, w))
             psi = float(np.arctan2(joint @ tilted_a, joint @ tilted_f))
-            d = float(np.linalg.norm(joint))
-            families.append((axis, reference, phi, psi, d))
+            families.append((axis, phi, psi))
             members.append(one_axis_poses(axis_base, point_base, axis, reference, phi + turns, np.array([psi]),
                                           d * scales))
     if not members:
         raise InsufficientMotionsError("every tilted axis points at the camera")
     scores = outlines.capped_scores(T, np.concatenate(members), cap_px, cfg.outline_stride, cfg.outline_screen)
     k, j = divmod(_best(scores), len(turns) * len(scales))
-    axis, reference, phi, psi, d = families[k]
-
+    axis, phi, psi = families[k]
     return _outline_rounds(_family(axis_base, point_base, axis, reference), outlines, cfg, members[k][j],
                            phi + turns[j // len(scales)], psi, d * scales[j % len(scales)])
 

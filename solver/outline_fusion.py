@@ -63,7 +63,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from solver.arrays import FloatArray
-from solver.camera import pixels_from_camera_points
 from solver.errors import (
     InsufficientMotionsError,
     InvalidInputError,
@@ -583,10 +582,7 @@ class OutlineAdjustment:
         chunk = max(1, _SCORED_POINTS // len(all_points))
         for start in range(0, len(poses), chunk):
             Ts = poses[start:start + chunk]
-            cam = all_points @ Ts[:, :3, :3].transpose(0, 2, 1) + Ts[:, None, :3, 3]  # (n, M, 3)
-            front = cam[..., 2] > 1e-6
-            pixels = np.full(cam.shape[:2] + (2,), -1e9)
-            pixels[front] = pixels_from_camera_points(cam[front], self.intrinsics)
+            pixels, front = project_base_points(Ts, all_points, self.intrinsics)  # (n, M, 2), (n, M)
             total = np.zeros(len(Ts))
             for cached, directions, lo, hi in zip(seen, outward, bounds[:-1], bounds[1:], strict=True):
                 edges = cached.image.edges

@@ -350,12 +350,15 @@ def pair_contour_points(T_camera_base: FloatArray, contours: Sequence[ContourPoi
 
 def project_base_points(T_camera_base: FloatArray, points_base: FloatArray, intrinsics: CameraIntrinsics
              ) -> tuple[FloatArray, NDArray[np.bool_]]:
-    """(N, 2) pixels of base points (N, 3) m, and (N,) whether each is in front of the camera."""
-    cam = points_base @ T_camera_base[:3, :3].T + T_camera_base[:3, 3]
-    front = cam[:, 2] > 1e-6
-    pixels = np.full((len(cam), 2), np.nan)
+    """(..., N, 2) pixels of base points (N, 3) m, and (..., N) whether each is in front of the camera.
+
+    T_camera_base: (4, 4), or a stack (..., 4, 4) seen from each at once. Points behind the camera get -1e9 px.
+    """
+    cam = points_base @ np.swapaxes(T_camera_base[..., :3, :3], -1, -2) + T_camera_base[..., None, :3, 3]
+    front = cam[..., 2] > 1e-6
+    pixels = np.full(cam.shape[:-1] + (2,), -1e9)
     pixels[front] = pixels_from_camera_points(cam[front], intrinsics)
-    return np.nan_to_num(pixels, nan=-1e9), front
+    return pixels, front
 
 
 def outline_residuals(T_camera_base: FloatArray, points_base: FloatArray, edge_points: FloatArray,

@@ -844,7 +844,8 @@ class Calibrator:
         (``OneAxisSearch.weak_share``) the one the most tracks follow; its family searched with a subsample of every
         live motion's tracks and then the outlines (``search_one_axis``); the outlines adjusted alone from the best
         member (``_outlines_alone``: the axis's direction is free again), taken on the rescue's tests (the outlines'
-        residual scale, the 1-sigma bounds).
+        residual scale, the 1-sigma bounds) and if the robot's outline there spans at least ``MIN_OUTLINE_SPREAD`` of
+        its tracks' spread.
 
         Returns:
             (the fusion, "") or (None, why not).
@@ -872,7 +873,7 @@ class Calibrator:
         fused, why = self._outlines_alone(T, f"{prefix} ({which})")
         if fused is None:
             return None, why
-        tracks = np.concatenate([uv for j in live for uv, _, _ in self._motions[j].tracks])
+        tracks = np.concatenate([np.zeros((0, 2))] + [uv for j in live for uv, _, _ in self._motions[j].tracks])
         share = _spread(self.outlines.contour_rays(fused.T_camera_base)) / max(_spread(tracks), 1e-12)
         if share < MIN_OUTLINE_SPREAD:
             return None, (f"{prefix} ({which}): the robot's outline there spans {share:.2f} of its tracks' spread (at "
