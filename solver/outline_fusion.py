@@ -175,7 +175,8 @@ class OutlineFusionConfig:
             scale at the fused pose exceeds this, pixels: contours fitted to the wrong edges. Measured on captured
             realistic episodes at three motions: 0.41-0.68 px where the fused pose was 0.6-0.9 mm off, 1.73 px where
             a tracks' pose 115 mm off (and sure of itself: chi-square 34) had its contours paired with the wrong
-            edges (88 mm off, chi-square 610).
+            edges (88 mm off, chi-square 610). The calibrator refuses such a fusion at any count
+            (``Calibrator._fuse_outlines``).
         max_disagreement_chi2: the fused pose is refused when it lies further than this from the tracks' pose
             (Mahalanobis, under the sum of the tracks' and the outlines' covariances; chi-square, 6 dof, 0.999).
         min_groups_along: fewest motions with images for ``fuse`` with a free direction (it serves the first

@@ -674,11 +674,6 @@ class Calibrator:
                 confirmed = outline is not None
                 failure = None if confirmed else failure
             first = self._refined is None  # a first pose: from the linear pose, the family or a rescued pose
-            loose = self._loose_fit(outline) if first and outline is not None else ""
-            if loose:  # as the rescue's: nothing else vouches for a first pose, at any count
-                failure = OutlineMismatchError(f"from {outline.n_groups} motions the outlines fit their edges too "
-                                               f"loosely at the first pose ({loose}): it may be far off")
-                outline = None
             outline_note = "" if failure is None else f"{type(failure).__name__}: {failure}" + (
                 f"; {unconfirmed}" if unconfirmed else "")
             rescued_cov = self.state.covariance  # the last update's: the rescued pose's, when there is one
@@ -1002,7 +997,7 @@ class Calibrator:
     def _loose_fit(self, fusion: OutlineFusion) -> str:
         """Why ``fusion``'s outlines fit their edges too loosely to vouch for a pose alone, or "" when they do not.
 
-        A first pose and a rescued pose need this at any motion count (the fusion checks it below
+        Every fusion the calibrator takes needs this, at any motion count (the fusion checks it below
         ``trusted_groups`` only): their residuals' robust scale at most ``OutlineFusionConfig.max_early_sigma_px``.
         """
         assert self.outlines is not None
@@ -1298,7 +1293,12 @@ class Calibrator:
         """The outlines adjusted with the tracks' pose ``refined``: (the fusion, None) or (None, why they could not be).
 
         Without outline images: (None, None). The adjustment goes on from where the last one ended, with the tracks'
-        covariance taken ``prior_scale`` times (``OutlineAdjustment.fuse``; ``_hold_outlines``). Its
+        covariance taken ``prior_scale`` times (``OutlineAdjustment.fuse``; ``_hold_outlines``). Outlines that fit
+        their edges loosely (``_loose_fit``) are refused at any count (``OutlineMismatchError``): paired with other
+        edges, they pull the pose to a wrong minimum with a narrow covariance (seen: an as-shipped xArm 6 at 720p,
+        after an update whose tracks' pose the outlines disagreed with, fused 21 mm off with a 1-sigma of 0.5 mm at a
+        residual scale of 2.81 px, where its good fusions had 0.2-0.4 px; another fused 65-110 mm off at 2.6-3.0 px).
+        Its
         ``OutlineMismatchError`` refuses a first pose in ``update``: from the first few motions the linear
         calibration and the pose family can settle on a wrong branch that the tracks then fit (seen: a realistic
         720p Panda 1.84 rad and 379 mm off for three motions from the family, 1-sigma 0.03 rad and 62 mm; a 720p
@@ -1312,12 +1312,17 @@ class Calibrator:
         # own may still be too wide for it (seen: a realistic 720p iiwa's 8.2 px RMS at motion 5, where the pose the
         # outlines rescued at 4 was 0.5 mm off; and 8.8 px at 13 after a fused pose 0.7 mm off at 12).
         try:
-            return self.outlines.fuse(refined.T_camera_base, refined.covariance,
-                                      last.T_camera_base if last is not None else None,
-                                      start_covariance=self.state.covariance if last is not None else None,
-                                      prior_scale=prior_scale), None
+            fused = self.outlines.fuse(refined.T_camera_base, refined.covariance,
+                                       last.T_camera_base if last is not None else None,
+                                       start_covariance=self.state.covariance if last is not None else None,
+                                       prior_scale=prior_scale)
         except (ArcCalibError, np.linalg.LinAlgError) as exc:
             return None, exc
+        loose = self._loose_fit(fused)
+        if loose:
+            return None, OutlineMismatchError(f"from {fused.n_groups} motions the outlines fit their edges too loosely "
+                                              f"({loose}): paired with other edges than the robot's")
+        return fused, None
 
     def _screen_track_set(self, live: list[int]) -> TrackSet:
         """A subsample of motions ``live``'s tracks for ``screen_start``: evenly spaced tracks and frames."""
