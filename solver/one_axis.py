@@ -268,18 +268,14 @@ def search_one_axis(tracks: TrackSet, axis_base: FloatArray, point_base: FloatAr
             best = found
     if best is None:
         raise InsufficientMotionsError("no member of the one-axis family sees the outlines")
-    axis, reference = axis_cam, reference_cam
-    for _ in range(cfg.tilt_rounds if cfg.tilt_deg > 0 else 0):
+    for _ in range(cfg.tilt_rounds if cfg.tilt_deg > 0 else 0):  # each round about the last one's best member
         try:
-            tilted = _tilted(axis_base, point_base, axis, reference, best[0], outlines, cfg)
+            tilted = _tilted(axis_base, point_base, best[0], outlines, cfg)
         except InsufficientMotionsError:  # no tilted member sees the outlines
             break
         if tilted[1] >= best[1]:
             break
         best = tilted
-        # the next round tilts the new member's axis, through its joint's point
-        axis = best[0][:3, :3] @ np.asarray(axis_base, dtype=np.float64)
-        reference = best[0][:3, :3] @ np.asarray(point_base, dtype=np.float64) + best[0][:3, 3]
     return best
 
 
@@ -313,20 +309,21 @@ def _outline_rounds(poses: _Family, outlines: OutlineAdjustment, cfg: OneAxisSea
     return centre, score
 
 
-def _tilted(axis_base: FloatArray, point_base: FloatArray, axis_cam: FloatArray, reference_cam: FloatArray,
-            T: FloatArray, outlines: OutlineAdjustment, cfg: OneAxisSearch) -> tuple[FloatArray, float]:
+def _tilted(axis_base: FloatArray, point_base: FloatArray, T: FloatArray, outlines: OutlineAdjustment,
+            cfg: OneAxisSearch) -> tuple[FloatArray, float]:
     """The family of a tilted axis that the outlines fit best, about the member T (4, 4): its best pose and score.
 
-    The axis's direction A^c is turned by up to ``OneAxisSearch.tilt_deg`` about the plane's normal and about f
-    (``axis_plane``), through the joint's point where T puts it; each tilted family is scored at that point (three
-    distances) and at turns about the one nearest T's rotation (the first outline round's reach and cap), the best
-    tilt then refined in the outline rounds.
+    T's axis A^c (the joint's axis a_b (3,) seen from T) is turned by up to ``OneAxisSearch.tilt_deg`` about the
+    normal of its plane and about f (``axis_plane``: the plane through the camera centre and the joint's point d_b
+    (3,) where T puts it), through that point; each tilted family is scored there (three distances) and at turns about
+    the one nearest T's rotation (the first outline round's reach and cap), the best tilt then refined in the outline
+    rounds. For a member of a family, A^c and its plane are the family's own.
     """
-    a_c, f = axis_plane(axis_cam, reference_cam)
-    normal = np.cross(a_c, f)
     joint = T[:3, :3] @ np.asarray(point_base, dtype=np.float64) + T[:3, 3]  # the joint's point, camera frame
     d = float(np.linalg.norm(joint))
     reference = joint / d  # every tilted axis's line runs through it
+    a_c, f = axis_plane(T[:3, :3] @ np.asarray(axis_base, dtype=np.float64), reference)
+    normal = np.cross(a_c, f)
     turn_deg, _, _, cap_px = cfg.outline_rounds[0]
     turns = np.radians(np.linspace(-turn_deg, turn_deg, 13))
     scales = np.array([0.9, 1.0, 1.1])

@@ -1298,8 +1298,7 @@ class Calibrator:
         edges, they pull the pose to a wrong minimum with a narrow covariance (seen: an as-shipped xArm 6 at 720p,
         after an update whose tracks' pose the outlines disagreed with, fused 21 mm off with a 1-sigma of 0.5 mm at a
         residual scale of 2.81 px, where its good fusions had 0.2-0.4 px; another fused 65-110 mm off at 2.6-3.0 px).
-        Its
-        ``OutlineMismatchError`` refuses a first pose in ``update``: from the first few motions the linear
+        Its ``OutlineMismatchError`` refuses a first pose in ``update``: from the first few motions the linear
         calibration and the pose family can settle on a wrong branch that the tracks then fit (seen: a realistic
         720p Panda 1.84 rad and 379 mm off for three motions from the family, 1-sigma 0.03 rad and 62 mm; a 720p
         iiwa 115 mm off from the linear pose, chi-square of the truth 35). Any other failure refuses a first pose
