@@ -20,7 +20,9 @@ PR #29584), so ``solve_eye_to_hand`` calls OpenCV when the binding exists and ot
 ``shah_robot_world_hand_eye``, our numpy implementation of the same method. It was checked against
 OpenCV 4.10.0's ``calibrateRobotWorldHandEye`` (a separate environment) on noisy synthetic inputs:
 equal to 1e-15; ``tests/arc_env/test_marker_baseline.py`` repeats that comparison wherever the
-binding exists (and is skipped with OpenCV 5.0.0).
+binding exists (and is skipped with OpenCV 5.0.0). OpenCV 5.1.0 binds it again, but takes the translations
+only as (3, 1) columns (given (3,) vectors it fails an assertion in ``gemm``): they are passed so, which every
+release takes.
 
 What the baseline is allowed to know (and what it is not):
 
@@ -277,8 +279,8 @@ def solve_eye_to_hand(T_base_flange: FloatArray, T_camera_board: FloatArray,
         raise InvalidInputError(f"this OpenCV ({cv2.__version__}) does not bind calibrateRobotWorldHandEye")
     if has_cv and use_opencv is not False:
         R_x, t_x, R_z, t_z = cv2.calibrateRobotWorldHandEye(
-            list(T_board_camera[:, :3, :3]), list(T_board_camera[:, :3, 3]),
-            list(T_flange_base[:, :3, :3]), list(T_flange_base[:, :3, 3]),
+            list(T_board_camera[:, :3, :3]), list(T_board_camera[:, :3, 3:]),  # (3, 1) translations: OpenCV
+            list(T_flange_base[:, :3, :3]), list(T_flange_base[:, :3, 3:]),  # 5.1's binding rejects (3,) ones
             method=cv2.CALIB_ROBOT_WORLD_HAND_EYE_SHAH)
         X, Z = transform_from_rt(R_x, np.ravel(t_x)), transform_from_rt(R_z, np.ravel(t_z))
     else:
