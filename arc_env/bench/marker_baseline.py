@@ -19,7 +19,7 @@ then linear least squares for both translations; M. Shah, J. Mechanisms Robotics
 PR #29584), so ``solve_eye_to_hand`` calls OpenCV when the binding exists and otherwise runs
 ``shah_robot_world_hand_eye``, our numpy implementation of the same method. It was checked against
 OpenCV 4.10.0's ``calibrateRobotWorldHandEye`` (a separate environment) on noisy synthetic inputs:
-equal to 1e-15; ``tests/arc_env/test_marker_baseline.py`` repeats that comparison wherever the
+equal to 1e-15; ``tests/arc_env/bench/test_marker_baseline.py`` repeats that comparison wherever the
 binding exists (and is skipped with OpenCV 5.0.0). OpenCV 5.1.0 binds it again, but takes the translations
 only as (3, 1) columns (given (3,) vectors it fails an assertion in ``gemm``): they are passed so, which every
 release takes.
