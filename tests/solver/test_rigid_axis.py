@@ -190,6 +190,58 @@ def test_the_block_trust_region_reaches_the_dense_ones_minimum():
                                rtol=1e-9)
 
 
+def test_the_unscaled_trust_region_reaches_the_dense_ones_minimum():
+    """``unit_scale`` against scipy's trust region with the variables unscaled (``x_scale=1.0``)."""
+    tracks, a0, p0, X0 = _line_and_points(14, point_noise=0.005)
+    focal, config = float(K[0, 0]), RigidAxisConfig()
+
+    def residuals(x):
+        a, p = _turn(x[:3], a0, p0)
+        return _residuals(tracks, tracks.rotations(a), p, x[3:].reshape(-1, 3), focal).ravel()
+
+    dense = least_squares(residuals, np.concatenate([np.zeros(3), X0.ravel()]), tr_solver="exact",
+                          loss="cauchy", f_scale=config.loss_scale_px, x_scale=1.0, max_nfev=100)
+    a_dense, _ = _turn(dense.x[:3], a0, p0)
+    a, p, X, _ = _refine(tracks, a0, p0, X0, focal, config, unit_scale=True)
+    r = _residuals(tracks, tracks.rotations(a), p, X, focal)
+    cost = 0.5 * config.loss_scale_px ** 2 * np.sum(np.log1p(r ** 2 / config.loss_scale_px ** 2))
+    assert _angle(a0, a_dense) > np.radians(1.0)  # the start is off: both moved
+    assert cost == pytest.approx(dense.cost, rel=1e-6)
+    assert _angle(a, a_dense) < 1e-5
+
+
+@pytest.mark.parametrize("lower", [True, False])
+def test_the_polished_fit_is_kept_only_when_its_cost_is_lower(monkeypatch, lower):
+    """The chosen start's fit is fitted again unscaled, from where it ended; the lower truncated cost wins."""
+    obs, axis = _scene(4, np.array([0.3, -1.0, 0.4]), np.array([0.1, 0.05, 1.2]))
+    real = rigid_axis_module._fit_from_start
+    calls = []
+
+    def spy(uv, deltas, a, p, focal, config, noise_px, unit_scale=False):
+        cost, a_fit, p_fit, tracks, X, n = real(uv, deltas, a, p, focal, config, noise_px, unit_scale)
+        calls.append((unit_scale, a.copy(), a_fit.copy()))
+        if unit_scale:  # a polished line turned by 2 degrees, at a cost below or above the searched one
+            a_turned = _tilted(a_fit, np.radians(2.0))
+            p_turned = p_fit - a_turned * (a_turned @ p_fit)
+            p_turned /= np.linalg.norm(p_turned)
+            X_turned = _triangulate(tracks, tracks.rotations(a_turned), p_turned)
+            return cost + (-1.0 if lower else 1.0), a_turned, p_turned, tracks, X_turned, n
+        return cost, a_fit, p_fit, tracks, X, n
+
+    monkeypatch.setattr(rigid_axis_module, "_fit_from_start", spy)
+    fit = rigid_axis_of_motion(obs, CAMERA)
+    searched = [c for c in calls if not c[0]]
+    assert [c[0] for c in calls] == [False] * len(searched) + [True]  # once, after the search
+    chosen = min(searched, key=lambda c: _angle(c[2], calls[-1][1]))[2]
+    np.testing.assert_array_equal(calls[-1][1], chosen)  # it starts where the chosen fit ended
+    assert _angle(fit.axis_cam, chosen) == pytest.approx(np.radians(2.0) if lower else 0.0, abs=1e-9)
+    calls.clear()
+    unpolished = rigid_axis_of_motion(obs, CAMERA, RigidAxisConfig(polish=False))
+    assert not any(c[0] for c in calls)
+    np.testing.assert_array_equal(unpolished.axis_cam, chosen)
+    assert _angle(unpolished.axis_cam, axis) < np.radians(0.5)
+
+
 def test_the_batched_track_check_matches_one_track_at_a_time():
     tracks, a, p, _ = _line_and_points(13)
     focal = float(K[0, 0])
