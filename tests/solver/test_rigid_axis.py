@@ -229,14 +229,14 @@ def test_the_polished_fit_is_kept_only_when_its_cost_is_lower(monkeypatch, lower
         return cost, a_fit, p_fit, tracks, X, n
 
     monkeypatch.setattr(rigid_axis_module, "_fit_from_start", spy)
-    fit = rigid_axis_of_motion(obs, CAMERA)
+    fit = rigid_axis_of_motion(obs, CAMERA, RigidAxisConfig(polish=True))
     searched = [c for c in calls if not c[0]]
     assert [c[0] for c in calls] == [False] * len(searched) + [True]  # once, after the search
     chosen = min(searched, key=lambda c: _angle(c[2], calls[-1][1]))[2]
     np.testing.assert_array_equal(calls[-1][1], chosen)  # it starts where the chosen fit ended
     assert _angle(fit.axis_cam, chosen) == pytest.approx(np.radians(2.0) if lower else 0.0, abs=1e-9)
     calls.clear()
-    unpolished = rigid_axis_of_motion(obs, CAMERA, RigidAxisConfig(polish=False))
+    unpolished = rigid_axis_of_motion(obs, CAMERA)  # (off by default)
     assert not any(c[0] for c in calls)
     np.testing.assert_array_equal(unpolished.axis_cam, chosen)
     assert _angle(unpolished.axis_cam, axis) < np.radians(0.5)
