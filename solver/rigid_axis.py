@@ -656,9 +656,10 @@ def _refine(tracks: _Tracks, a: FloatArray, p: FloatArray, X0: FloatArray, focal
         return r, blocks, scale_inv
 
     r, blocks, (inv_g, inv_p) = linearize(a, p, X0)
-    inv_g, inv_p = np.where(inv_g == 0, 1.0, inv_g), np.where(inv_p == 0, 1.0, inv_p)
     if unit_scale:
         inv_g, inv_p = np.ones_like(inv_g), np.ones_like(inv_p)
+    else:
+        inv_g, inv_p = np.where(inv_g == 0, 1.0, inv_g), np.where(inv_p == 0, 1.0, inv_p)
     c = cost(r)
     theta = float(np.arctan2(p @ v, p @ u))  # scipy's x: (0, 0, theta, X0), its norm in the xtol test
     radius = float(np.sqrt((theta * inv_g[2]) ** 2 + np.sum((X0 * inv_p) ** 2))) or 1.0

@@ -167,9 +167,12 @@ def test_the_analytic_jacobian_matches_central_differences():
         np.testing.assert_allclose(J_point[:, :, k], (r_plus - r_minus) / (2 * step), rtol=1e-5, atol=1e-3)
 
 
-def test_the_block_trust_region_reaches_the_dense_ones_minimum():
-    """The Schur-complement trust region against scipy's (exact solver, dense Jacobian, same settings)."""
-    tracks, a0, p0, X0 = _line_and_points(12)
+@pytest.mark.parametrize(("x_scale", "unit_scale", "seed", "point_noise"),
+                         [("jac", False, 12, 0.0), (1.0, True, 14, 0.005)])
+def test_the_block_trust_region_reaches_the_dense_ones_minimum(x_scale, unit_scale, seed, point_noise):
+    """The Schur-complement trust region against scipy's (exact solver, dense Jacobian, same settings): the
+    variables scaled by the Jacobian's column norms, or (``unit_scale``) not at all."""
+    tracks, a0, p0, X0 = _line_and_points(seed, point_noise)
     focal, config = float(K[0, 0]), RigidAxisConfig()
 
     def residuals(x):
@@ -177,9 +180,9 @@ def test_the_block_trust_region_reaches_the_dense_ones_minimum():
         return _residuals(tracks, tracks.rotations(a), p, x[3:].reshape(-1, 3), focal).ravel()
 
     dense = least_squares(residuals, np.concatenate([np.zeros(3), X0.ravel()]), tr_solver="exact",
-                          loss="cauchy", f_scale=config.loss_scale_px, x_scale="jac", max_nfev=100)
+                          loss="cauchy", f_scale=config.loss_scale_px, x_scale=x_scale, max_nfev=100)
     a_dense, _ = _turn(dense.x[:3], a0, p0)
-    a, p, X, rms = _refine(tracks, a0, p0, X0, focal, config)
+    a, p, X, rms = _refine(tracks, a0, p0, X0, focal, config, unit_scale=unit_scale)
     r = _residuals(tracks, tracks.rotations(a), p, X, focal)
     cost = 0.5 * config.loss_scale_px ** 2 * np.sum(np.log1p(r ** 2 / config.loss_scale_px ** 2))
     assert _angle(a0, a_dense) > np.radians(1.0)  # the start is off: both moved
@@ -188,26 +191,6 @@ def test_the_block_trust_region_reaches_the_dense_ones_minimum():
     squares = np.sum(r ** 2, axis=1)
     np.testing.assert_allclose(rms, [np.sqrt(np.mean(squares[tracks.track == t])) for t in range(len(X))],
                                rtol=1e-9)
-
-
-def test_the_unscaled_trust_region_reaches_the_dense_ones_minimum():
-    """``unit_scale`` against scipy's trust region with the variables unscaled (``x_scale=1.0``)."""
-    tracks, a0, p0, X0 = _line_and_points(14, point_noise=0.005)
-    focal, config = float(K[0, 0]), RigidAxisConfig()
-
-    def residuals(x):
-        a, p = _turn(x[:3], a0, p0)
-        return _residuals(tracks, tracks.rotations(a), p, x[3:].reshape(-1, 3), focal).ravel()
-
-    dense = least_squares(residuals, np.concatenate([np.zeros(3), X0.ravel()]), tr_solver="exact",
-                          loss="cauchy", f_scale=config.loss_scale_px, x_scale=1.0, max_nfev=100)
-    a_dense, _ = _turn(dense.x[:3], a0, p0)
-    a, p, X, _ = _refine(tracks, a0, p0, X0, focal, config, unit_scale=True)
-    r = _residuals(tracks, tracks.rotations(a), p, X, focal)
-    cost = 0.5 * config.loss_scale_px ** 2 * np.sum(np.log1p(r ** 2 / config.loss_scale_px ** 2))
-    assert _angle(a0, a_dense) > np.radians(1.0)  # the start is off: both moved
-    assert cost == pytest.approx(dense.cost, rel=1e-6)
-    assert _angle(a, a_dense) < 1e-5
 
 
 @pytest.mark.parametrize("lower", [True, False])
