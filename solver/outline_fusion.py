@@ -71,6 +71,7 @@ from solver.errors import (
     OutlineReachError,
 )
 from solver.frames import check_transform, perturb, pose_difference
+from solver.mask_start import ChangeMask
 from solver.observations import CameraIntrinsics
 from solver.outlines import (
     ContourPoints,
@@ -107,11 +108,14 @@ class OutlineImage:
         edges: its sub-pixel edges (``solver.outlines.image_edges``).
         q: (n,) float64, rad: the arm's configuration in it.
         group: the motion it belongs to (its images share the links' shading: one cluster).
+        changed: where it differs from its motion's first image (``solver.mask_start.change_mask``), for a first
+            pose from the moving links (``Calibrator``'s mask rescue); None: not known (the first image, or none).
     """
 
     edges: ImageEdges
     q: FloatArray
     group: int
+    changed: ChangeMask | None = None
 
     def __post_init__(self) -> None:
         q = np.asarray(self.q, dtype=np.float64).reshape(-1)
@@ -500,6 +504,35 @@ class OutlineAdjustment:
         scores = np.full(len(poses), np.inf)
         scores[best] = self._capped_scores(poses[best], cap_px, stride)
         return scores
+
+    def paired_share(self, T: FloatArray, max_px: float) -> float:
+        """The share of every image's contour points seen inside the image from T (4, 4) with an edge near them.
+
+        Near: within ``max_px`` px, of a matching direction (``ImageEdges.matching``). Contours are rendered at T. A
+        pose far off can fit the few edges its contours fall near closely (a small residual scale) while most of its
+        contour finds none; at the pose, most does. 0 when no contour point is seen.
+
+        Raises:
+            InsufficientMotionsError: no images.
+        """
+        T = check_transform(np.asarray(T, dtype=np.float64), "T")
+        if not self._images:
+            raise InsufficientMotionsError("no outline images to pair with")
+        seen = paired = 0
+        for cached in self._images:
+            cached.render(self.renderer, T, self.intrinsics)
+            if cached.contour is None or not len(cached.contour.points_base):
+                continue
+            pixels, front = project_base_points(T, cached.contour.points_base, self.intrinsics)
+            inside = front & np.all(pixels >= -0.5, axis=1) & (pixels[:, 0] < self.intrinsics.width - 0.5) & (
+                pixels[:, 1] < self.intrinsics.height - 0.5)
+            if not inside.any():
+                continue
+            _, matched, _ = cached.image.edges.matching(pixels[inside], cached.contour.outward[inside], max_px,
+                                                        self.config.outline.max_normal_angle_deg)
+            seen += int(inside.sum())
+            paired += int(matched.sum())
+        return paired / seen if seen else 0.0
 
     def _require_groups(self, fewest: int) -> None:
         if self.n_groups < fewest:

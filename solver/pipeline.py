@@ -47,6 +47,7 @@ from solver.errors import (
 )
 from solver.frames import pose_difference, transform_from_rt
 from solver.kinematics import AxisFunction
+from solver.mask_start import ChangeMask, MaskStartConfig, MaskView, MovingSurface, mask_starts
 from solver.motion import MotionConfig, MotionGeometry, estimate_motion_geometry, track_moved
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
 from solver.one_axis import OneAxisSearch, search_one_axis
@@ -171,6 +172,11 @@ class CalibratorConfig:
             ``OneAxisSearch.weak_share``), the family of poses that axis allows is searched with every motion's tracks
             and then the outlines (``solver.one_axis``), and the outlines are adjusted from the best member; the result
             is taken on the rescue's own tests (``Calibrator._one_axis_rescue``). None: off.
+        mask_start: when all of that fails or has nothing to start from, and three motions' outline images carry
+            change masks (``OutlineImage.changed``) and the contour renderer is also a ``MovingSurface``: poses that
+            draw the moving links where the motions changed the image (``solver.mask_start``), and the outlines
+            adjusted alone from each; the result is taken on the rescue's own tests (``Calibrator._mask_rescue``).
+            None: off.
         blas_threads: BLAS threads while the calibrator works (``add_motion``, ``update``, ``focal_check``,
             ``batch_refinement``), restored after; None: leave BLAS as it is (``solver.threads``, where the
             measurement is).
@@ -203,6 +209,7 @@ class CalibratorConfig:
     outlines: OutlineFusionConfig = field(default_factory=OutlineFusionConfig)
     hold_outlines: bool = True
     one_axis: OneAxisSearch | None = field(default_factory=OneAxisSearch)
+    mask_start: MaskStartConfig | None = field(default_factory=MaskStartConfig)
     blas_threads: int | None = 1
 
     def __post_init__(self) -> None:
@@ -387,6 +394,14 @@ OUTLINES_ALONE_PRIOR_STD = (0.05, 0.05)
 #: and 1.07 at rescued as-shipped iiwa 1080p poses (poses 1 and 5, 0.1 mm off); 0.16 at a 720p pose 9 rescued 5.4 m
 #: off, the robot drawn small on a few edges with a residual scale under 1 px.
 MIN_OUTLINE_SPREAD = 0.5
+#: A pose from the change masks (``Calibrator._mask_rescue``) must have at least this share of the robot's contour
+#: points seen in the images within this many px of an edge (``OutlineAdjustment.paired_share``): the residual scale
+#: is judged on the pairs alone, and a pose far off can fit a few edges closely. Measured on the first three to five
+#: motions of 40 as-shipped 720p captures (30 iiwa, 5 xArm 6, 5 Panda): 0.64-0.75 at the true pose, 0.10-0.36 at 20 mrad
+#: and 20 mm from it; a test's spheres fused 0.36 rad off from masks seen by another camera at a residual scale of
+#: 0.64 px had 0.11.
+MASK_MIN_PAIRED = 0.5
+MASK_PAIR_PX = 3.0
 #: Poses along the tracks' free direction that ``Calibrator._outline_rescue`` first scores with the outlines: where
 #: the motions' joints lie this many log-spaced distances from the camera within ``family_distances`` (0.3-5 m: 7 %
 #: apart; ``OutlineAdjustment.search_along`` then searches between the best one's neighbours).
@@ -480,7 +495,8 @@ class Calibrator:
         config: settings; defaults to ``CalibratorConfig()``.
         contours: the robot's occluding contour at a configuration from a camera pose (``ContourRenderer``, e.g.
             ``arc_env.robot.contours.RobotContours``), for the outline stage (``CalibratorConfig.outlines``);
-            None: the tracks alone.
+            None: the tracks alone. One that is also a ``solver.mask_start.MovingSurface`` (``RobotContours`` is)
+            serves the mask rescue (``CalibratorConfig.mask_start``).
     """
 
     def __init__(self, intrinsics: CameraIntrinsics, kinematics: AxisFunction,
@@ -503,6 +519,8 @@ class Calibrator:
         self._from_family = False  # the refined pose descends from a family start no linear start has beaten
         self._held_updates = 0  # updates in a row whose outlines held the pose against the tracks' (_hold_outlines)
         self._one_axis_tries: dict[int, int] = {}  # per motion, one-axis searches from its axis (_one_axis_rescue)
+        self._surface = contours if isinstance(contours, MovingSurface) else None  # for _mask_rescue
+        self._changes: dict[int, tuple[ChangeMask, list[FloatArray]]] = {}  # per motion: its mask, its images' q
         self._outlines_placed = False  # the last pose: the outlines' alone, or held by them since (_confirm_outlines)
         self.relinearized = 0  # updates that solved every motion (for benchmarks)
         self.report_seconds = 0.0  # s spent on the conic front end for its report alone (``conics_always``)
@@ -536,6 +554,12 @@ class Calibrator:
         if self.outlines is not None:
             for image in outlines:
                 self.outlines.add(replace(image, group=report.index))
+            changed = [image.changed for image in outlines if image.changed is not None]
+            if changed and self._surface is not None:
+                union = changed[0]
+                for mask in changed[1:]:
+                    union = union.union(mask)
+                self._changes[report.index] = (union, [image.q for image in outlines])
         mcfg = self.config.motion
         moving = [t for t in obs.tracks
                   if len(t) >= self.config.refinement.min_track_frames and track_moved(t, mcfg)]
@@ -815,7 +839,59 @@ class Calibrator:
             if fused is not None:
                 return fused, ""
             why = f"{why}; {why_one}" if why else why_one
+        if rescued is None and cfg.mask_start is not None and len(self._changes) >= cfg.mask_start.min_motions:
+            fused, why_mask = self._mask_rescue(live)
+            if fused is not None:
+                return fused, ""
+            why = f"{why}; {why_mask}" if why else why_mask
         return None, why
+
+    def _mask_rescue(self, live: list[int]) -> tuple[OutlineFusion | None, str]:
+        """The outlines' rescue from where the moving links changed the image (``CalibratorConfig.mask_start``).
+
+        Every motion whose outline images carry change masks (pruned ones too: a mask needs no tracks) is drawn from
+        the robot's surface (``MovingSurface``) at its images' configurations; ``mask_starts`` gives the poses that
+        cover the masks best, and the outlines are adjusted alone from each (``_outlines_alone``). A fusion is taken
+        on the rescue's tests (the outlines' residual scale, the 1-sigma bounds), if the robot's outline there spans
+        at least ``MIN_OUTLINE_SPREAD`` of the live motions' tracks' spread (as ``_one_axis_rescue``), and if at least
+        ``MASK_MIN_PAIRED`` of its contour points seen in the images have an edge within ``MASK_PAIR_PX``
+        (``OutlineAdjustment.paired_share``); of those taken, the one with the largest such share.
+
+        Returns:
+            (the fusion, "") or (None, why not).
+        """
+        assert self.outlines is not None and self.config.mask_start is not None and self._surface is not None
+        prefix = "no start from the change masks"
+        views = []
+        for k, (change, qs) in sorted(self._changes.items()):
+            joint = self.reports[k].joint
+            views.append(MaskView(change, np.stack([self._surface.moving_points(q, joint) for q in qs])))
+        try:
+            starts = mask_starts(views, self.intrinsics, self.config.mask_start)
+        except ArcCalibError as exc:
+            return None, f"{prefix}: {type(exc).__name__}: {exc}"
+        tracks = np.concatenate([np.zeros((0, 2))] + [uv for j in live for uv, _, _ in self._motions[j].tracks])
+        best: tuple[float, OutlineFusion] | None = None
+        why = ""
+        for rank, (iou, T) in enumerate(starts, 1):
+            which = f"{prefix} (start {rank} of {len(starts)}, covering {iou:.2f})"
+            fused, why_here = self._outlines_alone(T, which)
+            if fused is not None and len(tracks):
+                share = _spread(self.outlines.contour_rays(fused.T_camera_base)) / max(_spread(tracks), 1e-12)
+                if share < MIN_OUTLINE_SPREAD:
+                    fused, why_here = None, (f"{which}: the robot's outline there spans {share:.2f} of its tracks' "
+                                             f"spread (at least {MIN_OUTLINE_SPREAD:g}): a pose far off")
+            if fused is not None:
+                share = self.outlines.paired_share(fused.T_camera_base, MASK_PAIR_PX)
+                if share < MASK_MIN_PAIRED:
+                    fused, why_here = None, (f"{which}: {share:.2f} of the robot's outline there lies within "
+                                             f"{MASK_PAIR_PX:g} px of an edge (at least {MASK_MIN_PAIRED:g}): a pose "
+                                             "far off")
+            if fused is None:
+                why = why or why_here
+            elif best is None or share > best[0]:
+                best = (share, fused)
+        return (best[1], "") if best is not None else (None, why)
 
     def _outlines_alone(self, T: FloatArray, prefix: str) -> tuple[OutlineFusion | None, str]:
         """The outlines adjusted alone from T (4, 4): (the fusion, "") or (None, why not).

@@ -71,12 +71,19 @@ class CapturedOutline:
             raise InvalidInputError("a grey frame could not be PNG-encoded for the capture")
         return cls(buffer.tobytes(), np.array(image.q, dtype=np.float64), int(image.group))
 
-    def image(self) -> OutlineImage:
-        """The outline stage's image of the frame, its edges found by the code as it is now."""
+    def grey(self) -> ImageArray:
+        """The grey frame (H, W) uint8."""
         grey = cv2.imdecode(np.frombuffer(self.png, np.uint8), cv2.IMREAD_GRAYSCALE)
         if grey is None:
             raise InvalidInputError("a captured outline frame does not decode")
-        return outline_image(grey, self.q, self.group)
+        return grey
+
+    def image(self, first: ImageArray | None = None) -> OutlineImage:
+        """The outline stage's image of the frame, its edges found by the code as it is now.
+
+        ``first``: as ``arc_env.robot.session.outline_image``'s, its motion's first frame when this is not that one.
+        """
+        return outline_image(self.grey(), self.q, self.group, first)
 
 
 @dataclass(frozen=True)
@@ -127,8 +134,9 @@ class CallRecorder:
 
         def images_spy(q_start: FloatArray, joint: int, deltas: FloatArray, frames: Any) -> list[OutlineImage]:
             images = []
-            for grey, q in session.outline_greys(q_start, joint, deltas, frames):
-                image = outline_image(grey, q)
+            greys = session.outline_greys(q_start, joint, deltas, frames)
+            for i, (grey, q) in enumerate(greys):
+                image = outline_image(grey, q, first=greys[0][0] if i else None)
                 self._greys[id(image)] = (image, CapturedOutline.of(grey, image))
                 images.append(image)
             return images
@@ -207,7 +215,9 @@ def _calibrator(capture: Capture, config: CalibratorConfig | None) -> Calibrator
 
 
 def _outlines(outlines: tuple[Any, ...]) -> list[OutlineImage]:
-    return [o.image() if isinstance(o, CapturedOutline) else o for o in outlines]
+    """A captured call's outline images as the session makes them now (the second on with the first frame)."""
+    first = outlines[0].grey() if outlines and isinstance(outlines[0], CapturedOutline) else None
+    return [o.image(first if i else None) if isinstance(o, CapturedOutline) else o for i, o in enumerate(outlines)]
 
 
 def replay(capture: Capture, config: CalibratorConfig | None = None) -> list[CalibrationState]:

@@ -67,6 +67,7 @@ class RobotContours:
         self._robot_geom[:-1] = np.isin(m.geom_bodyid, self.robot.robot_bodies) & (m.geom_group <= 2)
         self._drawn = np.flatnonzero(self._robot_geom[:-1])  # the robot's geoms that are drawn
         self._local = threading.local()
+        self._points_lock = threading.Lock()  # moving_points poses self.robot
 
     def __call__(self, T_camera_base: FloatArray, q: FloatArray) -> ContourPoints:
         """The contour with the arm at q (n,) rad seen from T_camera_base (4, 4)."""
@@ -76,6 +77,15 @@ class RobotContours:
         K[0, 2] -= u0  # the window's own pinhole: its pixel (0, 0) is the image's (u0, v0)
         K[1, 2] -= v0
         return contour_from_depth(depth, mask, T, K, self.min_step_m, self.stride)
+
+    def moving_points(self, q: FloatArray, joint: int) -> FloatArray:
+        """(P, 3) float64, metres, base frame: the vertices of the drawn geoms ``joint`` moves, with the arm at q (n,).
+
+        For the calibrator's first pose from the change masks (``solver.mask_start.MovingSurface``).
+        """
+        with self._points_lock:
+            self.robot.set_q(q)
+            return self.robot.points_base(*self.robot.surface_points(joint))
 
     def depth_and_mask(self, T_camera_base: FloatArray, q: FloatArray) -> tuple[FloatArray, np.ndarray]:
         """The depth and the robot's pixels with the arm at q (n,) rad, the camera at T_camera_base (4, 4).

@@ -46,6 +46,7 @@ from planners.errors import TransitError
 from planners.transit import TransitConfig, TransitPath, plan_transit
 from solver.arrays import FloatArray, ImageArray, evenly_spaced
 from solver.errors import ArcCalibError, InvalidInputError
+from solver.mask_start import change_mask
 from solver.observations import CameraIntrinsics, KeypointTrack, MotionObservation
 from solver.outline_fusion import OutlineImage
 from solver.outlines import image_edges
@@ -87,9 +88,20 @@ def motion_refusal_reason(robot: RobotModel, checker: CollisionChecker, min_delt
 OUTLINE_FRAMES = 3
 
 
-def outline_image(grey: ImageArray, q: FloatArray, group: int = 0) -> OutlineImage:
-    """The outline stage's image of a grey frame (H, W) uint8 taken with the arm at q (n,) rad: its edges."""
-    return OutlineImage(image_edges(grey), q, group)
+def outline_image(grey: ImageArray, q: FloatArray, group: int = 0, first: ImageArray | None = None) -> OutlineImage:
+    """The outline stage's image of a grey frame (H, W) uint8 taken with the arm at q (n,) rad: its edges.
+
+    ``first``: its motion's first outline frame (H, W) uint8, when it is not that one: the image then also carries
+    where it differs from it (``OutlineImage.changed``, ``solver.mask_start.change_mask``; None for an image too
+    small for the mask's cells).
+    """
+    changed = None
+    if first is not None:
+        try:
+            changed = change_mask([first, grey])
+        except InvalidInputError:
+            changed = None
+    return OutlineImage(image_edges(grey), q, group, changed)
 
 
 @dataclass(frozen=True)
@@ -570,8 +582,9 @@ class CalibrationSession:
 
     def outline_images(self, q_start: FloatArray, joint: int, deltas: FloatArray,
                        frames: Sequence[ImageArray]) -> list[OutlineImage]:
-        """The outline stage's images of a motion (``outline_greys``, each through ``outline_image``)."""
-        return [outline_image(grey, q) for grey, q in self.outline_greys(q_start, joint, deltas, frames)]
+        """The outline stage's images of a motion (``outline_greys``, through ``outline_image`` with the first)."""
+        greys = self.outline_greys(q_start, joint, deltas, frames)
+        return [outline_image(grey, q, first=greys[0][0] if i else None) for i, (grey, q) in enumerate(greys)]
 
     def observe(self, q_start: FloatArray, joint: int, tracks: Sequence[KeypointTrack],
                 update: bool = True, outlines: Sequence[OutlineImage] = ()) -> MotionOutcome:

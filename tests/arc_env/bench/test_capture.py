@@ -6,10 +6,19 @@ import pickle
 import numpy as np
 import pytest
 
-from arc_env.bench.capture import CapturedOutline, capture_episode, load_capture, replay, rescore, save_capture
+from arc_env.bench.capture import (
+    CapturedOutline,
+    _outlines,
+    capture_episode,
+    load_capture,
+    replay,
+    rescore,
+    save_capture,
+)
 from arc_env.bench.episodes import EpisodeSpec, EpisodeStore, code_version, run_episodes
 from arc_env.bench.runner import study_task
 from solver.errors import InvalidInputError
+from solver.mask_start import change_mask
 from tests.support.scripts import load_script
 
 #: A small clean episode with the outline stage: 4 motions at 480x270.
@@ -111,3 +120,17 @@ def test_a_replay_refuses_what_does_not_belong_together(kept, capture, tmp_path)
     (tmp_path / "bad.pkl").write_bytes(b"not a pickle")
     with pytest.raises(InvalidInputError, match="not a readable capture"):
         load_capture(tmp_path / "bad.pkl")
+
+
+def test_a_replay_finds_the_change_masks_the_episode_had(capture):
+    """The session gives each motion's outline images after the first where they differ from it
+    (``OutlineImage.changed``); a replay finds them again from the captured grey frames."""
+    _, _, images = capture.calls[0]
+    replayed = _outlines(images)
+    assert replayed[0].changed is None and all(image.changed is not None for image in replayed[1:])
+    greys = [image.grey() for image in images]
+    for grey, image in zip(greys[1:], replayed[1:], strict=True):
+        expected = change_mask([greys[0], grey])
+        assert image.changed.cell_px == expected.cell_px
+        np.testing.assert_array_equal(image.changed.cells, expected.cells)
+    assert any(image.changed.cells.any() for image in replayed[1:])  # the arm moved

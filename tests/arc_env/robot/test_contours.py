@@ -11,6 +11,7 @@ from arc_env.robot.model import RobotModel, RobotSource
 from arc_env.robot.overlay import RobotProjector
 from arc_env.sim.scene import Scene, SceneConfig
 from solver.frames import transform_from_rt
+from solver.mask_start import MovingSurface
 from solver.observations import CameraIntrinsics
 
 W, H = 640, 360
@@ -157,3 +158,25 @@ def test_the_contour_read_in_the_robots_window_is_the_whole_images(robot, q, vie
     depth_whole, mask_whole = contours.depth_and_mask(T, q)
     assert np.array_equal(mask_whole, mask)
     assert np.array_equal(depth_whole[mask], depth[mask])
+
+
+def test_the_moving_points_are_the_models_and_lie_on_its_rendered_pixels(robot, q):
+    """``moving_points`` (the mask rescue's ``MovingSurface``): the vertices of the links a joint moves, where the
+    caller's model puts them at q, and seen on the robot's own rendered pixels."""
+    contours = RobotContours(robot, CameraIntrinsics(np.array([[500.0, 0, W / 2], [0, 500.0, H / 2], [0, 0, 1]]),
+                                                     np.zeros(5), W, H))
+    assert isinstance(contours, MovingSurface)
+    saved = robot.q.copy()
+    points = contours.moving_points(q, 3)
+    np.testing.assert_array_equal(robot.q, saved)  # the caller's model is not posed
+    robot.set_q(q)
+    expected = robot.points_base(*robot.surface_points(3))
+    robot.set_q(saved)
+    np.testing.assert_allclose(points, expected, atol=1e-9)
+    assert len(contours.moving_points(q, 0)) > len(points)  # joint 1 moves every link joint 4 does, and more
+    _, mask = contours.depth_and_mask(T_VIEW, q)
+    cam = points @ T_VIEW[:3, :3].T + T_VIEW[:3, 3]
+    px = np.rint(cam[:, :2] / cam[:, 2:] * 500.0 + [W / 2, H / 2]).astype(int)
+    inside = (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H)
+    near = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    assert inside.mean() > 0.9 and near[px[inside, 1], px[inside, 0]].mean() > 0.99
