@@ -870,17 +870,13 @@ class Calibrator:
             starts = mask_starts(views, self.intrinsics, self.config.mask_start)
         except ArcCalibError as exc:
             return None, f"{prefix}: {type(exc).__name__}: {exc}"
-        tracks = np.concatenate([np.zeros((0, 2))] + [uv for j in live for uv, _, _ in self._motions[j].tracks])
         best: tuple[float, OutlineFusion] | None = None
         why = ""
         for rank, (iou, T) in enumerate(starts, 1):
             which = f"{prefix} (start {rank} of {len(starts)}, covering {iou:.2f})"
             fused, why_here = self._outlines_alone(T, which)
-            if fused is not None and len(tracks):
-                share = _spread(self.outlines.contour_rays(fused.T_camera_base)) / max(_spread(tracks), 1e-12)
-                if share < MIN_OUTLINE_SPREAD:
-                    fused, why_here = None, (f"{which}: the robot's outline there spans {share:.2f} of its tracks' "
-                                             f"spread (at least {MIN_OUTLINE_SPREAD:g}): a pose far off")
+            if fused is not None and (small := self._outline_too_small(fused.T_camera_base, live)):
+                fused, why_here = None, f"{which}: {small}"
             if fused is not None:
                 share = self.outlines.paired_share(fused.T_camera_base, MASK_PAIR_PX)
                 if share < MASK_MIN_PAIRED:
@@ -944,12 +940,24 @@ class Calibrator:
         fused, why = self._outlines_alone(T, f"{prefix} ({which})")
         if fused is None:
             return None, why
+        small = self._outline_too_small(fused.T_camera_base, live)
+        return (None, f"{prefix} ({which}): {small}") if small else (fused, "")
+
+    def _outline_too_small(self, T: FloatArray, live: list[int]) -> str:
+        """Why the robot's outline seen from T (4, 4) is too small to be its pose, or "" when it is not.
+
+        Too small: its contour points span less than ``MIN_OUTLINE_SPREAD`` of the live motions' tracks' spread (a pose
+        far off draws the robot small on a few edges). With no tracks nothing is compared.
+        """
+        assert self.outlines is not None
         tracks = np.concatenate([np.zeros((0, 2))] + [uv for j in live for uv, _, _ in self._motions[j].tracks])
-        share = _spread(self.outlines.contour_rays(fused.T_camera_base)) / max(_spread(tracks), 1e-12)
-        if share < MIN_OUTLINE_SPREAD:
-            return None, (f"{prefix} ({which}): the robot's outline there spans {share:.2f} of its tracks' spread (at "
-                          f"least {MIN_OUTLINE_SPREAD:g}): a pose far off")
-        return fused, ""
+        if not len(tracks):
+            return ""
+        spread = _spread(self.outlines.contour_rays(T)) / max(_spread(tracks), 1e-12)
+        if spread >= MIN_OUTLINE_SPREAD:
+            return ""
+        return (f"the robot's outline there spans {spread:.2f} of its tracks' spread (at least "
+                f"{MIN_OUTLINE_SPREAD:g}): a pose far off")
 
     def _rescue_from(self, T: FloatArray, live: list[int], joints: FloatArray, tracks: TrackSet,
                      max_prior_px: float | None = None) -> tuple[OutlineFusion | None, str]:
