@@ -40,7 +40,7 @@ from solver.frames import transform_from_rt
 from solver.observations import CameraIntrinsics
 
 __all__ = ["ChangeMask", "ChangeMaskConfig", "MaskStartConfig", "MaskView", "MovingSurface", "change_mask",
-           "drawn_cells", "mask_iou", "mask_starts"]
+           "changed_pixels", "drawn_cells", "mask_iou", "mask_starts"]
 
 
 @dataclass(frozen=True)
@@ -98,6 +98,29 @@ def _ellipse(size_px: int) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
 
 
+def changed_pixels(greys: Sequence[ImageArray], threshold_grey: int, min_images: int = 1, open_px: int = 0,
+                   dilate_px: int = 0) -> ImageArray:
+    """(H, W) uint8: 255 where >= ``min_images`` of greys[1:] differ from greys[0] by more than ``threshold_grey``.
+
+    The pixels then opened by an elliptical kernel of side ``open_px`` (speckle removed) and dilated by one of side
+    ``dilate_px`` (0 or 1: neither). One meaning of "the sweep changed this pixel", shared by ``change_mask`` and the
+    tracker's moving mask (``arc_env.robot.tracking.moving_mask``). The images are (H, W) uint8 of one shape, checked
+    by the callers; ``min_images`` is capped at len(greys) - 1 and 255.
+    """
+    first = greys[0]
+    count = np.zeros_like(first)  # images in which the pixel differs from the first (saturates at 255)
+    for grey in greys[1:]:
+        _, changed = cv2.threshold(cv2.absdiff(grey, first), threshold_grey, 1, cv2.THRESH_BINARY)
+        cv2.add(count, changed, dst=count)
+    least = max(1, min(min_images, len(greys) - 1, 255))
+    _, mask = cv2.threshold(count, least - 1, 255, cv2.THRESH_BINARY)
+    if open_px > 1:
+        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _ellipse(open_px))
+    if dilate_px > 1:
+        mask = cv2.dilate(mask, _ellipse(dilate_px))
+    return mask
+
+
 def change_mask(greys: Sequence[ImageArray], config: ChangeMaskConfig | None = None) -> ChangeMask:
     """The cells where any of a motion's images differs from its first one.
 
@@ -122,15 +145,9 @@ def change_mask(greys: Sequence[ImageArray], config: ChangeMaskConfig | None = N
     cell = width // cfg.cells_across
     if cell < 1 or height < cell:
         raise InvalidInputError(f"a {width}x{height} image is too small for {cfg.cells_across} cells across")
-    changed = np.zeros(first.shape, np.uint8)
-    for grey in images[1:]:
-        changed |= (cv2.absdiff(grey, first) > cfg.threshold_grey).astype(np.uint8)
-    if cfg.open_px > 1:
-        changed = cv2.morphologyEx(changed, cv2.MORPH_OPEN, _ellipse(cfg.open_px))
-    if cfg.dilate_px > 1:
-        changed = cv2.dilate(changed, _ellipse(cfg.dilate_px))
+    changed = changed_pixels(images, cfg.threshold_grey, 1, cfg.open_px, cfg.dilate_px)
     h, w = height // cell, width // cell
-    share = cv2.resize(changed[:h * cell, :w * cell].astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    share = cv2.resize((changed[:h * cell, :w * cell] > 0).astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
     return ChangeMask(share > 0.5, cell)
 
 

@@ -60,6 +60,7 @@ from numpy.typing import NDArray
 
 from solver.arrays import FloatArray, ImageArray, MaskArray
 from solver.errors import InvalidInputError
+from solver.mask_start import changed_pixels
 from solver.observations import KeypointTrack
 from solver.schur import robust_sigma
 from solver.threads import check_blas_threads, limited_blas
@@ -384,24 +385,10 @@ def _grey_frames(frames: Sequence[ImageArray]) -> list[ImageArray]:
     return greys
 
 
-def _ellipse(size_px: int) -> NDArray[np.uint8]:
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size_px, size_px))
-
-
 def _moving_mask_u8(greys: list[ImageArray], config: TrackerConfig) -> ImageArray:
     """(H, W) uint8 mask, 255 where the sweep changes the image (see ``moving_mask``)."""
-    first = greys[0]
-    count = np.zeros_like(first)  # frames in which the pixel differs from the first (saturates at 255)
-    for grey in greys[1:]:
-        _, changed = cv2.threshold(cv2.absdiff(grey, first), config.motion_threshold, 1, cv2.THRESH_BINARY)
-        cv2.add(count, changed, dst=count)
-    min_frames = min(config.mask_min_frames, len(greys) - 1, 255)
-    _, mask = cv2.threshold(count, min_frames - 1, 255, cv2.THRESH_BINARY)
-    if config.mask_open_px > 1:
-        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _ellipse(config.mask_open_px))
-    if config.mask_dilate_px > 1:
-        mask = cv2.dilate(mask, _ellipse(config.mask_dilate_px))
-    return mask
+    return changed_pixels(greys, config.motion_threshold, config.mask_min_frames, config.mask_open_px,
+                          config.mask_dilate_px)
 
 
 def moving_mask(frames: Sequence[ImageArray], config: TrackerConfig | None = None) -> MaskArray:

@@ -13,6 +13,7 @@ from solver.mask_start import (
     MaskView,
     MovingSurface,
     change_mask,
+    changed_pixels,
     mask_iou,
     mask_starts,
 )
@@ -102,6 +103,22 @@ def test_a_change_below_the_threshold_is_not_marked():
     faint = first + np.uint8(ChangeMaskConfig().threshold_grey)
     assert not change_mask([first, faint]).cells.any()
     assert change_mask([first, faint + np.uint8(1)]).cells.all()
+
+
+def test_changed_pixels_counts_the_images_that_differ_from_the_first():
+    rng = np.random.default_rng(3)
+    greys = [rng.integers(0, 256, (40, 60)).astype(np.uint8) for _ in range(5)]
+    differs = np.stack([np.abs(g.astype(int) - greys[0].astype(int)) > 20 for g in greys[1:]])  # (4, 40, 60)
+    for least in (1, 2, 4):
+        expected = np.where(differs.sum(axis=0) >= least, 255, 0)
+        np.testing.assert_array_equal(changed_pixels(greys, 20, least), expected)
+    np.testing.assert_array_equal(changed_pixels(greys, 20, 9), changed_pixels(greys, 20, 4))  # capped at K - 1
+    one = np.zeros((40, 60), np.uint8)
+    one[20, 30] = 255
+    assert not changed_pixels([np.zeros_like(one), one], 10, open_px=3).any()  # a lone pixel opened away
+    grown = changed_pixels([np.zeros_like(one), one], 10, dilate_px=5)
+    assert grown[20, 28:33].all() and grown[18:23, 30].all()
+    assert np.count_nonzero(grown) == 17  # a 5 px ellipse: rows of 3, 5, 5, 5, 3
 
 
 def test_change_mask_refuses_bad_images():
