@@ -167,12 +167,13 @@ class CalibratorConfig:
             that makes the two consistent (``Calibrator._hold_outlines``) and report that pose when it is the last
             update's (at most ``HOLD_MAX_UPDATES`` updates in a row); such an update never declares convergence.
             False: the tracks' pose alone, as before.
-        one_axis: when the tracks give no pose, no rescued pose holds, and the outlines' rescue from the linear pose
-            or the pose family fails or has none to start from, but a motion has an axis (or a weak one:
-            ``OneAxisSearch.weak_share``), the family of poses that axis allows is searched with every motion's tracks
-            and then the outlines (``solver.one_axis``), and the outlines are adjusted from the best member; the result
-            is taken on the rescue's own tests (``Calibrator._one_axis_rescue``). None: off.
-        mask_start: when all of that fails or has nothing to start from, and three motions' outline images carry
+        one_axis: when the tracks give no pose, no rescued pose holds, the outlines' rescue from the linear pose
+            or the pose family fails or has none to start from, and so does ``mask_start``, but a motion has an axis
+            (or a weak one: ``OneAxisSearch.weak_share``), the family of poses that axis allows is searched with every
+            motion's tracks and then the outlines (``solver.one_axis``), and the outlines are adjusted from the best
+            member; the result is taken on the rescue's own tests (``Calibrator._one_axis_rescue``). None: off.
+        mask_start: when the tracks give no pose, no rescued pose holds, the outlines' rescue from the linear pose
+            or the pose family fails or has none to start from, and three motions' outline images carry
             change masks (``OutlineImage.changed``) and the contour renderer is also a ``MovingSurface``: poses that
             draw the moving links where the motions changed the image (``solver.mask_start``), and the outlines
             adjusted alone from each; the result is taken on the rescue's own tests (``Calibrator._mask_rescue``).
@@ -787,7 +788,8 @@ class Calibrator:
         pose, or else a member of the motions' pose family. Measured on realistic Panda episodes whose first motions
         turned joints 1-3 only: ``docs/realistic-imaging.md``. When those fail: the outlines alone from the last
         update's pose if the outlines fused or rescued it (``_outlines_alone``), then, with no rescued pose, the
-        family one motion's axis allows (``_one_axis_rescue``).
+        poses that draw the moving links where the motions changed the image (``_mask_rescue``) and last the family
+        one motion's axis allows (``_one_axis_rescue``).
 
         ``tracks``: every live motion's track set if this update built one, else None (built here when there is a
         start to try).
@@ -833,17 +835,19 @@ class Calibrator:
             if fused is not None:
                 return fused, ""
             why = f"{why}; {why_alone}" if why else why_alone
+        # The change masks before the one-axis search: on replays of 48 as-shipped captures the same runs had a pose
+        # by motion 5 and the replays took 30 % less CPU (docs/realistic-imaging.md, stop 64).
+        if rescued is None and cfg.mask_start is not None and len(self._changes) >= cfg.mask_start.min_motions:
+            fused, why_mask = self._mask_rescue(live)
+            if fused is not None:
+                return fused, ""
+            why = f"{why}; {why_mask}" if why else why_mask
         if rescued is None and cfg.one_axis is not None and any(self._motions[k].search_axis is not None
                                                                 for k in live):
             fused, why_one = self._one_axis_rescue(live, with_axis)
             if fused is not None:
                 return fused, ""
             why = f"{why}; {why_one}" if why else why_one
-        if rescued is None and cfg.mask_start is not None and len(self._changes) >= cfg.mask_start.min_motions:
-            fused, why_mask = self._mask_rescue(live)
-            if fused is not None:
-                return fused, ""
-            why = f"{why}; {why_mask}" if why else why_mask
         return None, why
 
     def _mask_rescue(self, live: list[int]) -> tuple[OutlineFusion | None, str]:

@@ -1,5 +1,7 @@
 """The first pose from the change masks, against spheres on the Panda's joints ray-cast through a known camera."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -259,6 +261,25 @@ def test_masks_that_lie_give_no_pose_far_off():
         assert rot < RESCUED_MAX_RAD and trans < RESCUED_MAX_M, (rot, trans)
     else:
         assert why.startswith("no start from the change masks")
+
+
+def test_the_masks_are_tried_before_the_one_axis_search(monkeypatch):
+    """The rescue chain's order: a pose from the change masks ends it; only without one does the (costlier) search
+    from one motion's axis run. The two rescues are stubbed: this is the chain's order, not their geometry."""
+    T = sample_camera_pose(np.random.default_rng(100), distance=(1.5, 2.5))
+    cal = _masked_calibrator(T, _motions(0, 4))
+    cal._motions[0] = SimpleNamespace(point_base=np.zeros(3), search_axis=object(), geometry=None)  # an axis to search
+    order: list[str] = []
+    pose = SimpleNamespace(T_camera_base=T)
+    for name, result in (("_mask_rescue", (pose, "")), ("_one_axis_rescue", (None, "no start from one motion's axis"))):
+        monkeypatch.setattr(cal, name, lambda *_, name=name, result=result: order.append(name) or result)
+    assert cal._outline_rescue([0], [], None, None) == (pose, "") and order == ["_mask_rescue"]
+    refused = (None, "no start from the masks")
+    monkeypatch.setattr(cal, "_mask_rescue", lambda *_: order.append("_mask_rescue") or refused)
+    order.clear()
+    fused, why = cal._outline_rescue([0], [], None, None)
+    assert fused is None and order == ["_mask_rescue", "_one_axis_rescue"]
+    assert why == "no start from the masks; no start from one motion's axis"
 
 
 def test_without_a_moving_surface_the_calibrator_keeps_no_masks():
