@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from solver import PANDA, Calibrator
+from solver import PANDA, Calibrator, mask_start
 from solver.errors import InsufficientMotionsError, InvalidInputError
 from solver.frames import perturb, pose_difference, pose_errors
 from solver.mask_start import (
@@ -165,6 +165,22 @@ def test_the_same_masks_give_the_same_starts():
     views = _views(T, _motions(0, 3))
     a, b = mask_starts(views, CAMERA), mask_starts(views, CAMERA)
     assert len(a) == len(b) and all(x[0] == y[0] and np.array_equal(x[1], y[1]) for x, y in zip(a, b, strict=True))
+
+
+def test_starts_that_converged_together_are_returned_once(monkeypatch):
+    """Every refinement ending 5 mrad / 5 mm from one pose (within ``distinct_rad`` / ``distinct_m``) gives that start
+    once; with the distinctness off, every refined start comes back."""
+    T = sample_camera_pose(np.random.default_rng(100), distance=(1.5, 2.5))
+    views = _views(T, _motions(0, 3))
+    ends = iter(perturb(T, np.array([0.005, 0.0, 0.0, 0.0, 0.005, 0.0]) * (k % 2)) for k in range(100))
+    refined = []
+    monkeypatch.setattr(mask_start, "_refined", lambda *_: refined.append(1) or (0.5, next(ends)))
+    assert len(mask_starts(views, CAMERA)) == 1
+    rounds = len(MaskStartConfig().steps)
+    assert len(refined) // rounds >= 2  # two starts or more were refined
+    refined.clear()
+    config = MaskStartConfig(distinct_rad=0.0, distinct_m=0.0)
+    assert len(mask_starts(views, CAMERA, config)) == min(config.returned, len(refined) // rounds)
 
 
 def test_fewer_than_three_changed_motions_give_no_start():
