@@ -38,7 +38,7 @@ from arc_env.bench.episodes import (
 from arc_env.robot.contours import RobotContours
 from arc_env.robot.exports import write_files_atomic
 from arc_env.robot.model import RobotModel, RobotSource
-from arc_env.robot.session import outline_image
+from arc_env.robot.session import motion_outline_images, outline_image
 from solver.arrays import FloatArray, ImageArray
 from solver.errors import InvalidInputError
 from solver.observations import CameraIntrinsics
@@ -133,12 +133,10 @@ class CallRecorder:
         add_motion = calibrator.add_motion
 
         def images_spy(q_start: FloatArray, joint: int, deltas: FloatArray, frames: Any) -> list[OutlineImage]:
-            images = []
             greys = session.outline_greys(q_start, joint, deltas, frames)
-            for i, (grey, q) in enumerate(greys):
-                image = outline_image(grey, q, first=greys[0][0] if i else None)
+            images = motion_outline_images(greys)
+            for (grey, _), image in zip(greys, images, strict=True):
                 self._greys[id(image)] = (image, CapturedOutline.of(grey, image))
-                images.append(image)
             return images
 
         def add_motion_spy(observation: Any, update: bool = True, outlines: Any = ()) -> Any:

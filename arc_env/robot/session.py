@@ -104,6 +104,14 @@ def outline_image(grey: ImageArray, q: FloatArray, group: int = 0, first: ImageA
     return OutlineImage(image_edges(grey), q, group, changed)
 
 
+def motion_outline_images(greys: Sequence[tuple[ImageArray, FloatArray]]) -> list[OutlineImage]:
+    """A motion's outline images from its outline frames, each (grey (H, W) uint8, q (n,) rad), in sweep order.
+
+    Each through ``outline_image``, the second on with the first frame (where they changed from it).
+    """
+    return [outline_image(grey, q, first=greys[0][0] if i else None) for i, (grey, q) in enumerate(greys)]
+
+
 @dataclass(frozen=True)
 class SessionConfig:
     """How a session checks, moves and calibrates.
@@ -582,9 +590,8 @@ class CalibrationSession:
 
     def outline_images(self, q_start: FloatArray, joint: int, deltas: FloatArray,
                        frames: Sequence[ImageArray]) -> list[OutlineImage]:
-        """The outline stage's images of a motion (``outline_greys``, through ``outline_image`` with the first)."""
-        greys = self.outline_greys(q_start, joint, deltas, frames)
-        return [outline_image(grey, q, first=greys[0][0] if i else None) for i, (grey, q) in enumerate(greys)]
+        """The outline stage's images of a motion (``outline_greys``, through ``motion_outline_images``)."""
+        return motion_outline_images(self.outline_greys(q_start, joint, deltas, frames))
 
     def observe(self, q_start: FloatArray, joint: int, tracks: Sequence[KeypointTrack],
                 update: bool = True, outlines: Sequence[OutlineImage] = ()) -> MotionOutcome:
