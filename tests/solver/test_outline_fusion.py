@@ -23,6 +23,7 @@ from solver.outlines import (
     outline_residuals,
     pair_contour_points,
 )
+from solver.refinement import conservative_covariance, few_clusters_factor
 from tests.solver.spheres import CAMERA, T_TRUE, project_px, render_spheres, sphere_contour
 
 #: Six motions' images (one each) of three spheres: centre (3,) m in the base frame, radius m.
@@ -239,6 +240,23 @@ def test_from_few_motions_the_outlines_bound_the_covariance_below(edges):
     assert np.linalg.eigvalsh(free.outline_covariance - free.covariance).min() > -1e-9 * np.trace(free.covariance)
     assert np.trace(floor.covariance) > 1.5 * np.trace(free.covariance)
     assert np.allclose(floor.T_camera_base, free.T_camera_base)  # the pose is the same
+
+
+def test_from_few_motions_the_outlines_floor_is_widened_by_the_few_clusters_factor(edges):
+    """Below trusted_groups the outlines' covariance, the floor, is few_clusters_factor(G) times theirs (G motions);
+    the pose is weighed as before. From trusted_groups motions on nothing changes."""
+    prior = np.eye(6) * 1e-5**2
+    for groups, factor in [([0, 0, 1, 1, 2, 2], few_clusters_factor(3)), (None, 1.0)]:
+        on, off = (_adjustment(edges, replace(UNLIMITED, few_groups_t=flag), groups).fuse(T_TRUE, prior)
+                   for flag in (True, False))
+        np.testing.assert_allclose(on.outline_covariance, factor * off.outline_covariance, rtol=1e-9)
+        np.testing.assert_allclose(on.T_camera_base, off.T_camera_base, atol=1e-12)
+        assert np.linalg.eigvalsh(on.covariance - off.covariance).min() > -1e-9 * np.trace(on.covariance)
+        if factor > 1.0:
+            np.testing.assert_allclose(on.covariance, conservative_covariance(off.covariance, on.outline_covariance),
+                                       rtol=1e-9)
+        else:
+            np.testing.assert_allclose(on.covariance, off.covariance, rtol=1e-12)
 
 
 def test_from_few_motions_loosely_fitting_outlines_are_refused(edges):
