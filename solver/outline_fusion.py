@@ -191,11 +191,14 @@ class OutlineFusionConfig:
         search_rounds: rounds of ``search_along`` (each renders every image at the best pose so far and searches
             again between the best offset's neighbours).
         search_samples: offsets per refining round.
-        few_groups_t: below ``trusted_groups`` motions the outlines' covariance is taken ``few_clusters_factor(G)``
-            times (G motions with pairs; 4.8 at three, 2.0 at five): their errors are shared within a motion, so
-            its scale is known from G - 1 degrees of freedom. Off (stop 64): the xArm 6's as-shipped 1080p runs held
-            the truth in the 95 % region after 71 of 80 updates, eight misses outline poses from three to five
-            motions 0.6-3.1 mm off at a 1-sigma of 0.3-0.9 mm (``docs/realistic-imaging.md``, stop 65).
+        few_groups_t: below ``trusted_groups`` motions the outlines' covariance, the floor under the fused pose's (and
+            a rescued one's, ``OutlineFusion.outline_covariance``), is taken ``few_clusters_factor(G)`` times (G motions
+            with pairs; 4.8 at three, 2.0 at five): their errors are shared within a motion, so its scale is known
+            from G - 1 degrees of freedom. The fusion still weighs the outlines by the estimate itself (widened there
+            too, the poses from three motions moved towards the tracks': median 0.36 -> 0.68 mm on 13 as-shipped
+            xArm 6 1080p captures). Off (stop 64): those runs held the truth in the 95 % region after 71 of 80
+            updates, eight misses outline poses from three to five motions 0.6-3.1 mm off at a 1-sigma of 0.3-0.9
+            mm; on, 79 of 80, every pose the same (``docs/realistic-imaging.md``, stop 65).
     """
 
     outline: OutlineConfig = OutlineConfig()
