@@ -44,7 +44,16 @@ class OutlineMismatchError(InsufficientMotionsError):
 
 
 class OutlineReachError(InsufficientMotionsError):
-    """The pose given to the outlines is too uncertain to pair their contour points with the nearest edges."""
+    """The pose given to the outlines is too uncertain to pair their contour points with the nearest edges.
+
+    ``refuted``: the outlines searched along the pose's weakest direction anyway and found it wanting there: they fit
+    their edges too loosely wherever the search put them, or their pose disagrees with it (the pose is likely on a
+    wrong branch, not merely uncertain).
+    """
+
+    def __init__(self, message: str, refuted: bool = False) -> None:
+        super().__init__(message)
+        self.refuted = refuted
 
 
 class OutlineDisagreementError(InsufficientMotionsError):

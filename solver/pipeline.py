@@ -145,6 +145,12 @@ class CalibratorConfig:
         rescue_wide: when the tracks' adjustment gives a pose too uncertain for the outlines to pair with
             (``OutlineReachError``), search its weakest direction with the outlines as the rescue does when the tracks
             give no pose, and take the result when the rescue's own tests pass (``Calibrator._rescue_wide``).
+        refuse_refuted: a first pose (no refined pose before it) that the outlines disagree with
+            (``OutlineDisagreementError``), or whose wide rescue found them fitting their edges too loosely all along
+            the tracks' weakest direction or disagreeing with the tracks' pose there (``OutlineReachError.refuted``),
+            is refused as a first pose they cannot fit near is: neither reported nor chained from (measured on the
+            as-shipped five-motion captures: every such pose 18-296 mm off, one at a chi-square of 2 750 under its
+            covariance; ``docs/realistic-imaging.md``, "Stop 66").
         incremental: once there is a refined pose, an update that adds one motion solves only its tracks'
             points and the pose, the earlier motions entering through their marginalized information
             (``solver.refinement.refine_increment``); every motion is solved again (relinearized) when
@@ -204,6 +210,7 @@ class CalibratorConfig:
     family_distances: tuple[float, float] = (0.3, 5.0)
     family_samples: int = 12
     rescue_wide: bool = True
+    refuse_refuted: bool = True
     incremental: bool = True
     relinearize_sigma: float = 2.0
     relinearize_every: int = 20
@@ -704,7 +711,10 @@ class Calibrator:
             rescued_cov = self.state.covariance  # the last update's: the rescued pose's, when there is one
             rescued_apart = (rescued is not None and rescued_cov is not None
                              and _transform_chi2(refined.T_camera_base, rescued, rescued_cov) > FAMILY_SAME_CHI2)
-            if first and failure is not None and (isinstance(failure, OutlineMismatchError) or rescued_apart):
+            refuted = cfg.refuse_refuted and (isinstance(failure, OutlineDisagreementError) or (
+                isinstance(failure, OutlineReachError) and failure.refuted))
+            if first and failure is not None and (isinstance(failure, OutlineMismatchError) or refuted
+                                                  or rescued_apart):
                 # A first pose the outlines cannot fit near: refused, neither reported nor chained from
                 # (``_fuse_outlines``; from six motions on, the fusion's residual scale read here: seen, a realistic
                 # 720p iiwa's family start 347 mm off at motion 6 fused with a 1-sigma of 0.6 mm); the outlines'
@@ -715,6 +725,9 @@ class Calibrator:
                 # last pose (seen: a realistic 720p iiwa rescued 0.6 mm off at motion 3, then a family start 341 mm
                 # off at 4 with the outlines 14.9 sigma away, chained from to motion 7; a realistic 720p Panda
                 # rescued 0.9 mm off to motion 6, a linear start 338 mm off at 7). One inside that region goes on.
+                # A first pose the outlines disagree with, or too wide for them whose search along its weakest
+                # direction found them loose or disagreeing everywhere, is refused too (``refuse_refuted``; seen: an
+                # as-shipped 720p iiwa's family start 296 mm off at motions 4 and 5 with a 1-sigma of 34 mm).
                 source = ("the two-axis pose family" if start_kind == "family"
                           else "the tracks' adjustment from the rescued pose" if rescued_start
                           else "the linear calibration")
@@ -818,7 +831,7 @@ class Calibrator:
         why = ""
         for T in starts:
             tracks = tracks if tracks is not None else self._track_set(live)
-            fused, why = self._rescue_from(T, live, joints, tracks)
+            fused, why, _ = self._rescue_from(T, live, joints, tracks)
             if fused is not None:
                 return fused, ""
         if rescued is not None and tracks is not None:
@@ -964,8 +977,11 @@ class Calibrator:
                 f"{MIN_OUTLINE_SPREAD:g}): a pose far off")
 
     def _rescue_from(self, T: FloatArray, live: list[int], joints: FloatArray, tracks: TrackSet,
-                     max_prior_px: float | None = None) -> tuple[OutlineFusion | None, str]:
-        """The outlines' rescue (``_outline_rescue``) from the start T (4, 4): (the fusion, "") or (None, why not).
+                     max_prior_px: float | None = None) -> tuple[OutlineFusion | None, str, bool]:
+        """The outlines' rescue (``_outline_rescue``) from T (4, 4): (the fusion, "", False) or (None, why, refuted).
+
+        Refuted: the search ran and the outlines fit their edges too loosely at its best pose, or their pose disagreed
+        with the tracks' held along the direction (not: the tracks or the outlines could not be judged there).
 
         A short pass of the bundle adjustment (``screen_start``); there the tracks' weakest direction
         (``track_observability``: the translation in units of the points' depth, so the rotation and translation
@@ -982,23 +998,26 @@ class Calibrator:
         prefix = "the outlines could not fix what the tracks leave free"
         T, score = screen_start(self._screen_track_set(live), T, cfg.refinement, cfg.refinement.max_nfev, FAMILY_CAP_PX)
         if not np.isfinite(score):
-            return None, f"{prefix}: the tracks cannot be triangulated from the start"
+            return None, f"{prefix}: the tracks cannot be triangulated from the start", False
         _, weakest = track_observability(tracks, T)
         if np.linalg.norm(weakest[3:]) < 0.9:
-            return None, f"{prefix}: the tracks' weakest direction is a rotation"
+            return None, f"{prefix}: the tracks' weakest direction is a rotation", False
         u = weakest[3:] / np.linalg.norm(weakest[3:])
         try:
             held = refine(tracks, T, cfg.refinement, free_direction=np.concatenate([np.zeros(3), u]))
             offsets = family_offsets(held.T_camera_base[:3, :3], held.T_camera_base[:3, 3], u, joints,
                                      np.geomspace(*cfg.family_distances, OUTLINE_SEARCH_SAMPLES))
             if offsets.size < 2:
-                return None, f"{prefix}: no pose along it puts the robot in front of the camera"
+                return None, f"{prefix}: no pose along it puts the robot in front of the camera", False
             start, _ = self.outlines.search_along(held.T_camera_base, u, offsets)
             fused = self.outlines.fuse(held.T_camera_base, held.covariance, start, free_direction=u,
                                        max_prior_px=max_prior_px)
+        except (OutlineMismatchError, OutlineDisagreementError) as exc:
+            return None, f"{prefix}: {type(exc).__name__}: {exc}", True
         except (ArcCalibError, np.linalg.LinAlgError) as exc:
-            return None, f"{prefix}: {type(exc).__name__}: {exc}"
-        return self._accepted_rescue(fused, prefix)
+            return None, f"{prefix}: {type(exc).__name__}: {exc}", False
+        accepted, why = self._accepted_rescue(fused, prefix)
+        return accepted, why, accepted is None and bool(self._loose_fit(fused))
 
     def _rescue_wide(self, refined: RefinementResult, live: list[int], tracks: TrackSet, failure: OutlineReachError
                      ) -> tuple[OutlineFusion | None, Exception | None, RefinementResult]:
@@ -1018,14 +1037,16 @@ class Calibrator:
         Costs an outline search (about 9 s of CPU for 15 images at 1080p) each update it runs.
 
         Returns:
-            (the fusion, None, the tracks' pose) or (None, the reach failure with the rescue's reason, ``refined``).
+            (the fusion, None, the tracks' pose) or (None, the reach failure with the rescue's reason and whether the
+            rescue refuted the pose, ``refined``).
         """
         assert self.outlines is not None
         joints = np.array([self._motions[k].point_base for k in live])
-        fused, why = self._rescue_from(refined.T_camera_base, live, joints, tracks,
-                                       self.outlines.config.max_rescue_prior_px)
+        fused, why, refuted = self._rescue_from(refined.T_camera_base, live, joints, tracks,
+                                                self.outlines.config.max_rescue_prior_px)
         if fused is None:
-            return None, OutlineReachError(f"{failure}; searched along the tracks' weakest direction: {why}"), refined
+            return None, OutlineReachError(f"{failure}; searched along the tracks' weakest direction: {why}",
+                                           refuted), refined
         again, _, _ = self._refine_checked(tracks, fused.T_camera_base, None)
         if (again is None or again.rms_px > refined.rms_px
                 or _transform_chi2(fused.T_camera_base, again.T_camera_base, again.covariance) > FAMILY_SAME_CHI2):
