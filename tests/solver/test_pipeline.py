@@ -747,11 +747,12 @@ def test_the_outlines_join_the_tracks_pose():
     assert s.seconds["outlines"] > 0
 
 
-def _biased_tracks_update(sigmas, config=None, biased=1, placed=None):
+def _biased_tracks_update(sigmas, config=None, biased=1, placed=None, widen=1.0):
     """An outline episode of 8 motions, then ``biased`` more whose tracks' pose is moved ``sigmas`` of its 1-sigma
     along the camera's x (a narrow covariance where the pose went: the tracks' on as-shipped castings). (calibrator,
     T_true, the tracks' pose of the last update, the state after the 8th). ``placed``: whether the chain is taken
-    for one the outlines placed alone (``Calibrator._outlines_placed``) from the 8th on."""
+    for one the outlines placed alone (``Calibrator._outlines_placed``) from the 8th on. ``widen``: the biased
+    updates' tracks' covariance is taken this many times (weak tracks beside the outlines)."""
     rng = np.random.default_rng(5)
     T = sample_camera_pose(rng)
     scene = SyntheticScene(PANDA, K, T, SyntheticConfig(noise_px=0.5, outlier_fraction=0.1, tracks_per_motion=30), rng)
@@ -768,8 +769,11 @@ def _biased_tracks_update(sigmas, config=None, biased=1, placed=None):
 
     def moved(refined):
         refined = weak(refined)
+        refined = replace(refined, covariance=widen * refined.covariance)
         xi = np.zeros(6)
         xi[3] = sigmas * np.sqrt(refined.covariance[3, 3])
+        if widen != 1.0:  # ``sigmas`` from the pose in its covariance's metric (along a principal direction)
+            xi = sigmas * np.linalg.cholesky(refined.covariance)[:, 3]
         biased_poses.append(perturb(refined.T_camera_base, xi))
         return replace(refined, T_camera_base=biased_poses[-1])
 
@@ -803,6 +807,30 @@ def test_outlines_hold_the_pose_for_a_few_updates_in_a_row_only():
     cal, _, tracks_pose, _ = _biased_tracks_update(10.0, biased=HOLD_MAX_UPDATES + 1)
     assert cal.state.outline is None and cal.state.outline_note.startswith("OutlineDisagreementError")
     np.testing.assert_array_equal(cal.state.T_camera_base, tracks_pose)
+
+
+@pytest.mark.parametrize("sigmas", [5.5, 10.0])
+def test_holds_that_widen_weak_tracks_a_little_do_not_count_towards_the_limit(sigmas):
+    """Weak tracks (their covariance 100x) whose pose sits 5.5 of its 1-sigma from the truth need their covariance
+    about 2.4x to agree with the outlines: such holds (at most ``HOLD_FREE_SCALE``) go on past ``HOLD_MAX_UPDATES``
+    (seen: an as-shipped xArm 6 held 1 mm off at scale 2, then the tracks' pose alone 26-33 mm off). At 10 sigma the
+    scale exceeds it and the hold ends after ``HOLD_MAX_UPDATES`` as before."""
+    from solver.pipeline import HOLD_FREE_SCALE, HOLD_MAX_UPDATES
+
+    cal, T, tracks_pose, _ = _biased_tracks_update(sigmas, biased=HOLD_MAX_UPDATES + 2, widen=100.0)
+    s = cal.state
+    if sigmas < 6:
+        assert s.outline is not None and 1.0 < s.outline.prior_scale <= HOLD_FREE_SCALE and not s.converged
+        assert cal._held_updates == 0 and s.outline_note == ""
+        rot, trans = pose_errors(s.T_camera_base, T)
+        assert rot < NOISY_ROT and trans < NOISY_TRANS
+        xi = pose_difference(s.T_camera_base, T)
+        assert xi @ np.linalg.solve(s.covariance, xi) < CHI2_6_999
+    else:
+        assert s.outline is None and s.outline_note.startswith("OutlineDisagreementError")
+        np.testing.assert_array_equal(s.T_camera_base, tracks_pose)
+        held, _, _, _ = _biased_tracks_update(sigmas, biased=1, widen=100.0)
+        assert held.state.outline is not None and held.state.outline.prior_scale > HOLD_FREE_SCALE
 
 
 @pytest.mark.parametrize("sigmas", [10.0, 1000.0])
