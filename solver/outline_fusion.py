@@ -58,6 +58,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -84,10 +85,20 @@ from solver.outlines import (
 )
 from solver.refinement import conservative_covariance, few_clusters_factor
 
-__all__ = ["ContourRenderer", "OutlineAdjustment", "OutlineFusion", "OutlineFusionConfig", "OutlineImage"]
+__all__ = ["CoarseContours", "ContourRenderer", "OutlineAdjustment", "OutlineFusion", "OutlineFusionConfig",
+           "OutlineImage"]
 
 #: The robot's occluding contour with the arm at q (n,) rad, seen from T_camera_base (4, 4).
 ContourRenderer = Callable[[FloatArray, FloatArray], ContourPoints]
+
+
+@runtime_checkable
+class CoarseContours(Protocol):
+    """A contour renderer with a cheaper one: the same contours from fewer pixels, a pixel or two less exact."""
+
+    def coarse(self) -> ContourRenderer:
+        """The cheaper renderer (its points are base-frame points as this one's: they project with the same camera)."""
+        ...
 
 #: The smaller polarity's least share of the pairs' weight for the edges' shift's growth along the outward normal
 #: (``OutlineFusionConfig.polarity_direction_px``) to be estimated.
@@ -191,6 +202,9 @@ class OutlineFusionConfig:
         search_rounds: rounds of ``search_along`` (each renders every image at the best pose so far and searches
             again between the best offset's neighbours).
         search_samples: offsets per refining round.
+        coarse_search: ``search_along``'s rounds before the last (caps of ``search_px`` and its half: a contour point
+            a pixel or two off does not change their ranking) render with the renderer's cheaper one when it has one
+            (``CoarseContours``); the last round renders at full resolution.
         few_groups_t: below ``trusted_groups`` motions the outlines' covariance, the floor under the fused pose's (and
             a rescued one's, ``OutlineFusion.outline_covariance``), is taken ``few_clusters_factor(G)`` times (G motions
             with pairs; 4.8 at three, 2.0 at five): their errors are shared within a motion, so its scale is known
@@ -222,6 +236,7 @@ class OutlineFusionConfig:
     search_px: float = 32.0
     search_rounds: int = 3
     search_samples: int = 9
+    coarse_search: bool = True
     few_groups_t: bool = True
 
     def __post_init__(self) -> None:
@@ -342,6 +357,7 @@ class OutlineAdjustment:
         self.intrinsics = intrinsics
         self.config = config or OutlineFusionConfig()
         self._images: list[_Cached] = []
+        self._coarse: ContourRenderer | None = None  # the renderer's cheaper one, made at its first use
 
     @property
     def images(self) -> tuple[OutlineImage, ...]:
@@ -468,7 +484,8 @@ class OutlineAdjustment:
         step = float("nan")
         for round_ in range(cfg.search_rounds):
             shifted = [_translated(T0, s * u) for s in offsets]
-            scores = self.capped_scores(best_T, np.array(shifted), cap)  # the contours from the best pose so far
+            coarse = cfg.coarse_search and round_ + 1 < cfg.search_rounds
+            scores = self.capped_scores(best_T, np.array(shifted), cap, coarse=coarse)  # rendered at the best so far
             if not np.isfinite(scores).any():
                 raise InsufficientMotionsError("no pose along the free direction puts the robot's contour in front "
                                                "of the camera")
@@ -485,7 +502,7 @@ class OutlineAdjustment:
         return best_T, step
 
     def capped_scores(self, T_render: FloatArray, poses: FloatArray, cap_px: float, stride: int = 1,
-                      screen: tuple[int, int] | None = None) -> FloatArray:
+                      screen: tuple[int, int] | None = None, coarse: bool = False) -> FloatArray:
         """(N,) px^2: how well each of ``poses`` (N, 4, 4) puts the robot's contours on the images' edges.
 
         Every image's contour is rendered at ``T_render`` (4, 4) (so the poses should lie near it), then each pose
@@ -493,6 +510,8 @@ class OutlineAdjustment:
         d the distance to the nearest edge of a matching direction; NaN where no point is in front. ``stride`` > 1:
         every stride-th contour point only (a search's cheaper ranking). ``screen`` = (s, k): every pose is scored
         first with every s-th point, and only the k best of them with every ``stride``-th; the others score inf.
+        ``coarse``: the contours rendered with the renderer's cheaper one (``CoarseContours``; the renderer itself when
+        it has none).
 
         Raises:
             InvalidInputError: a non-rigid pose, a cap that is not positive, a stride or screen below 1.
@@ -504,8 +523,9 @@ class OutlineAdjustment:
             raise InvalidInputError(f"cap_px must be > 0, stride and screen >= 1, got {cap_px}, {stride}, {screen}")
         if not self._images:
             raise InsufficientMotionsError("no outline images to score with")
+        renderer = self._coarse_renderer() if coarse else self.renderer
         for cached in self._images:
-            cached.render(self.renderer, T0, self.intrinsics)
+            cached.render(renderer, T0, self.intrinsics)
         poses = np.stack([check_transform(T, "a pose") for T in poses])
         if screen is None or screen[1] >= len(poses):
             return self._capped_scores(poses, cap_px, stride)
@@ -514,6 +534,12 @@ class OutlineAdjustment:
         scores = np.full(len(poses), np.inf)
         scores[best] = self._capped_scores(poses[best], cap_px, stride)
         return scores
+
+    def _coarse_renderer(self) -> ContourRenderer:
+        """The renderer's cheaper one (``CoarseContours``), or the renderer when it has none."""
+        if self._coarse is None:
+            self._coarse = self.renderer.coarse() if isinstance(self.renderer, CoarseContours) else self.renderer
+        return self._coarse
 
     def paired_share(self, T: FloatArray, max_px: float) -> float:
         """The share of every image's contour points seen inside the image from T (4, 4) with an edge near them.

@@ -9,6 +9,7 @@ from solver import outline_fusion
 from solver.errors import InsufficientMotionsError, InvalidInputError, OutlineDisagreementError
 from solver.frames import perturb, pose_difference
 from solver.outline_fusion import (
+    CoarseContours,
     OutlineAdjustment,
     OutlineFusionConfig,
     OutlineImage,
@@ -414,6 +415,52 @@ def test_tracks_sure_of_their_depth_keep_it(edges):
     start, _ = adjustment.search_along(prior, RAY, np.linspace(-0.6, 0.6, 40))
     fusion = adjustment.fuse(prior, np.eye(6) * 1e-10, start, free_direction=RAY)
     assert np.linalg.norm(pose_difference(fusion.T_camera_base, prior)[3:]) < 1e-4
+
+
+class _WithCoarse:
+    """The spheres' contours (``_renderer``) with a cheaper renderer (``CoarseContours``): every other point, each
+    moved 1 mm outwards in the base frame's x (a pixel or two in the image, as a half-resolution render's). Counts
+    the calls of each."""
+
+    def __init__(self):
+        self.calls = {"full": 0, "coarse": 0}
+
+    def __call__(self, T, q):
+        self.calls["full"] += 1
+        return _renderer(T, q)
+
+    def coarse(self):
+        def cheap(T, q):
+            self.calls["coarse"] += 1
+            full = _renderer(T, q)
+            return ContourPoints(full.points_base[::2] + np.array([1e-3, 0.0, 0.0]), full.outward[::2])
+        return cheap
+
+
+@pytest.mark.parametrize("coarse", [True, False])
+def test_the_search_renders_its_coarse_rounds_with_the_cheaper_renderer(edges, coarse):
+    """With ``coarse_search`` every round but the last renders with the renderer's cheaper one (``CoarseContours``),
+    the last at full resolution; the depth found is the one the full renders find, within the last round's step."""
+    prior = _shifted(T_TRUE, 0.3 * RAY)
+    offsets = np.linspace(-0.6, 0.6, 40)
+    config = OutlineFusionConfig(coarse_search=coarse)
+    assert isinstance(_WithCoarse(), CoarseContours) and not isinstance(_renderer, CoarseContours)
+    renderer = _WithCoarse()
+    adjustment = OutlineAdjustment(renderer, CAMERA, config)
+    for k, image in enumerate(edges):
+        adjustment.add(OutlineImage(image, np.array([float(k)]), k))
+    start, step = adjustment.search_along(prior, RAY, offsets)
+    rounds = config.search_rounds
+    assert renderer.calls == ({"full": len(edges), "coarse": (rounds - 1) * len(edges)} if coarse
+                              else {"full": rounds * len(edges), "coarse": 0})
+    plain, _ = _adjustment(edges, OutlineFusionConfig()).search_along(prior, RAY, offsets)
+    assert abs((start[:3, 3] - plain[:3, 3]) @ RAY) <= step + 1e-12
+    assert abs((start[:3, 3] - T_TRUE[:3, 3]) @ RAY) < step
+    # without a cheaper renderer the rounds use the renderer itself
+    fallback = OutlineAdjustment(_renderer, CAMERA, config)
+    for k, image in enumerate(edges):
+        fallback.add(OutlineImage(image, np.array([float(k)]), k))
+    np.testing.assert_array_equal(fallback.search_along(prior, RAY, offsets)[0], plain)
 
 
 def test_a_free_line_that_misses_the_robot_or_bad_input_is_refused(edges):

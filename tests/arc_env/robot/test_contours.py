@@ -13,6 +13,8 @@ from arc_env.sim.scene import Scene, SceneConfig
 from solver.frames import transform_from_rt
 from solver.mask_start import MovingSurface
 from solver.observations import CameraIntrinsics
+from solver.outline_fusion import CoarseContours
+from solver.outlines import project_base_points
 
 W, H = 640, 360
 #: Depth agreement with the simulator's renderer (float32 depth buffers of one GL pipeline), metres.
@@ -77,6 +79,29 @@ def test_an_off_centre_camera_sees_what_opencv_projects(robot, q):
     ii, oo = np.rint(inside).astype(int), np.rint(outside).astype(int)
     assert np.all(mask[ii[:, 1], ii[:, 0]])
     assert np.mean(~mask[oo[:, 1], oo[:, 0]]) > 0.5  # the rest lies on a farther link
+
+
+def test_the_coarse_contour_is_the_half_resolution_render_of_the_same_outline(robot, q):
+    """``coarse`` renders the same camera at half the size: its contour points, projected with the full camera, lie
+    within a pixel or two of the full render's (every point of it); it is a ``CoarseContours``, made once, and a small
+    image is not halved."""
+    camera = CameraIntrinsics(np.array([[1040.0, 0, 719.5], [0, 1040.0, 359.5], [0, 0, 1]]), np.zeros(5), 2 * W, 2 * H)
+    full = RobotContours(robot, camera)
+    assert isinstance(full, CoarseContours)
+    half = full.coarse()
+    assert half is full.coarse() and half.coarse() is half
+    assert (half.intrinsics.width, half.intrinsics.height) == (W, H)
+    np.testing.assert_allclose(half.intrinsics.K[:2], [[520.0, 0, 359.5], [0, 520.0, 179.5]])
+    coarse = half(T_VIEW, q)
+    fine = RobotContours(robot, camera, stride=1)(T_VIEW, q)
+    assert 0.35 * len(full(T_VIEW, q).points_base) < len(coarse.points_base) < 0.65 * len(full(T_VIEW, q).points_base)
+    px, _ = project_base_points(T_VIEW, coarse.points_base, camera)
+    ref, _ = project_base_points(T_VIEW, fine.points_base, camera)
+    gap = np.min(np.linalg.norm(px[:, None, :] - ref[None, :, :], axis=2), axis=1)
+    assert np.mean(gap < 1.5) > 0.9 and np.median(gap) < 1.0
+    small = CameraIntrinsics(np.array([[300.0, 0, 199.5], [0, 300.0, 149.5], [0, 0, 1]]), np.zeros(5), 400, 300)
+    tiny = RobotContours(robot, small)
+    assert tiny.coarse() is tiny
 
 
 def test_the_floor_under_the_base_makes_no_outline(robot, q):
