@@ -97,7 +97,10 @@ class CoarseContours(Protocol):
     """A contour renderer with a cheaper one: the same contours from fewer pixels, a pixel or two less exact."""
 
     def coarse(self) -> ContourRenderer:
-        """The cheaper renderer (its points are base-frame points as this one's: they project with the same camera)."""
+        """The cheaper renderer (its points are base-frame points as this one's: they project with the same camera).
+
+        Called at every coarse scoring: an implementation makes it once and keeps it (``RobotContours.coarse``).
+        """
         ...
 
 #: The smaller polarity's least share of the pairs' weight for the edges' shift's growth along the outward normal
@@ -357,7 +360,6 @@ class OutlineAdjustment:
         self.intrinsics = intrinsics
         self.config = config or OutlineFusionConfig()
         self._images: list[_Cached] = []
-        self._coarse: ContourRenderer | None = None  # the renderer's cheaper one, made at its first use
 
     @property
     def images(self) -> tuple[OutlineImage, ...]:
@@ -523,7 +525,7 @@ class OutlineAdjustment:
             raise InvalidInputError(f"cap_px must be > 0, stride and screen >= 1, got {cap_px}, {stride}, {screen}")
         if not self._images:
             raise InsufficientMotionsError("no outline images to score with")
-        renderer = self._coarse_renderer() if coarse else self.renderer
+        renderer = self.renderer.coarse() if coarse and isinstance(self.renderer, CoarseContours) else self.renderer
         for cached in self._images:
             cached.render(renderer, T0, self.intrinsics)
         poses = np.stack([check_transform(T, "a pose") for T in poses])
@@ -534,12 +536,6 @@ class OutlineAdjustment:
         scores = np.full(len(poses), np.inf)
         scores[best] = self._capped_scores(poses[best], cap_px, stride)
         return scores
-
-    def _coarse_renderer(self) -> ContourRenderer:
-        """The renderer's cheaper one (``CoarseContours``), or the renderer when it has none."""
-        if self._coarse is None:
-            self._coarse = self.renderer.coarse() if isinstance(self.renderer, CoarseContours) else self.renderer
-        return self._coarse
 
     def paired_share(self, T: FloatArray, max_px: float) -> float:
         """The share of every image's contour points seen inside the image from T (4, 4) with an edge near them.

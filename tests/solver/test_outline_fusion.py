@@ -51,9 +51,9 @@ def edges() -> list[ImageEdges]:
     return [image_edges(render_spheres(T_TRUE, spheres)) for spheres in SCENES]
 
 
-def _adjustment(edges, config=None, groups=None) -> OutlineAdjustment:
-    """The images as motions 0-5 (or ``groups``)."""
-    adjustment = OutlineAdjustment(_renderer, CAMERA, config or UNLIMITED)
+def _adjustment(edges, config=None, groups=None, renderer=_renderer) -> OutlineAdjustment:
+    """The images as motions 0-5 (or ``groups``), their contours from ``renderer``."""
+    adjustment = OutlineAdjustment(renderer, CAMERA, config or UNLIMITED)
     for k, image in enumerate(edges):
         adjustment.add(OutlineImage(image, np.array([float(k)]), k if groups is None else groups[k]))
     return adjustment
@@ -446,10 +446,7 @@ def test_the_search_renders_its_coarse_rounds_with_the_cheaper_renderer(edges, c
     config = OutlineFusionConfig(coarse_search=coarse)
     assert isinstance(_WithCoarse(), CoarseContours) and not isinstance(_renderer, CoarseContours)
     renderer = _WithCoarse()
-    adjustment = OutlineAdjustment(renderer, CAMERA, config)
-    for k, image in enumerate(edges):
-        adjustment.add(OutlineImage(image, np.array([float(k)]), k))
-    start, step = adjustment.search_along(prior, RAY, offsets)
+    start, step = _adjustment(edges, config, renderer=renderer).search_along(prior, RAY, offsets)
     rounds = config.search_rounds
     assert renderer.calls == ({"full": len(edges), "coarse": (rounds - 1) * len(edges)} if coarse
                               else {"full": rounds * len(edges), "coarse": 0})
@@ -457,10 +454,7 @@ def test_the_search_renders_its_coarse_rounds_with_the_cheaper_renderer(edges, c
     assert abs((start[:3, 3] - plain[:3, 3]) @ RAY) <= step + 1e-12
     assert abs((start[:3, 3] - T_TRUE[:3, 3]) @ RAY) < step
     # without a cheaper renderer the rounds use the renderer itself
-    fallback = OutlineAdjustment(_renderer, CAMERA, config)
-    for k, image in enumerate(edges):
-        fallback.add(OutlineImage(image, np.array([float(k)]), k))
-    np.testing.assert_array_equal(fallback.search_along(prior, RAY, offsets)[0], plain)
+    np.testing.assert_array_equal(_adjustment(edges, config).search_along(prior, RAY, offsets)[0], plain)
 
 
 def test_a_free_line_that_misses_the_robot_or_bad_input_is_refused(edges):
